@@ -1,0 +1,288 @@
+"""Evaluate many simulation requests in parallel through a ``concurrent.futures`` executor.
+
+* Local processes by default (``ProcessPoolExecutor`` with the 'spawn' context: each worker is a
+  long-lived process, so the Taichi runtime and its compiled kernels survive between tasks).
+* Any ``concurrent.futures.Executor`` may be passed instead, e.g. a dask.distributed
+  ``Client.get_executor()``; a ``Client`` itself is turned into its executor.  The code path is
+  the same: ``submit`` + ``as_completed``, no scheduler of our own.
+* ``workers=0`` evaluates in the calling process (:class:`InlineExecutor`), for tests and debugging.
+
+The store is consulted before anything is submitted and every result is written to it the moment
+it arrives, so a killed run loses only the simulations that were in flight.  A simulation that
+fails (``SimulationError`` or another ``RuntimeError``/``ArithmeticError``) is stored as failed and
+its loss is NaN; any other exception is a bug and propagates.
+"""
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+import multiprocessing
+import os
+import time
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from pathlib import Path
+from typing import Callable, Iterable, Sequence
+
+import numpy as np
+
+from mpm.store import SimRequest, SimResult, Store, digest
+
+DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
+
+# Source files of this package that do not change what a simulation computes.
+_NOT_SIMULATION = {"store.py", "batch.py", "datasets.py", "experiment.py", "loss.py", "__init__.py"}
+
+
+# -- requests --------------------------------------------------------------------------------------
+def camera_json(camera) -> str | None:
+    """Canonical JSON of a camera (an object with ``to_dict()``, a dict, or None)."""
+    if camera is None:
+        return None
+    d = camera.to_dict() if hasattr(camera, "to_dict") else dict(camera)
+    return json.dumps(d, sort_keys=True, separators=(",", ":"), default=float)
+
+
+def request_for(material, setup, *, density: float, depth_mm: float = 40.0, camera=None, cell_mm=None,
+                dim: int = 3, flow_rule: str = "paper", precision: str = "f32", image_size=(960, 540),
+                simulator: str = DEFAULT_SIMULATOR) -> SimRequest:
+    """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``)."""
+    return SimRequest(
+        eta=float(material.eta), n=float(material.n), sigma_y=float(material.sigma_y),
+        width_mm=float(setup.width_mm), height_mm=float(setup.height_mm), density=float(density),
+        depth_mm=float(depth_mm), camera=camera_json(camera),
+        cell_mm=None if cell_mm is None else float(cell_mm), dim=int(dim), flow_rule=str(flow_rule),
+        precision=str(precision), image_size=tuple(int(v) for v in image_size),
+        simulator=simulator, code_version=code_version(simulator),
+    )
+
+
+_VERSIONS: dict[str, str] = {}
+
+
+def code_version(simulator: str) -> str:
+    """Version of the forward model's source: ``CODE_VERSION`` of its module if set, else a source hash.
+
+    For the MPM simulator the hash covers every ``mpm/*.py`` that takes part in simulating
+    (not the store, batch, data or loss modules), so editing the solver invalidates the cache.
+    """
+    if simulator in _VERSIONS:
+        return _VERSIONS[simulator]
+    module_name = simulator.split(":")[0]
+    module = importlib.import_module(module_name)
+    version = getattr(module, "CODE_VERSION", None)
+    if version is None:
+        h = hashlib.sha256()
+        if simulator == DEFAULT_SIMULATOR:
+            files = sorted(p for p in Path(__file__).parent.glob("*.py") if p.name not in _NOT_SIMULATION)
+        else:
+            files = [Path(module.__file__)]
+        for p in files:
+            h.update(p.name.encode())
+            h.update(p.read_bytes())
+        version = h.hexdigest()[:16]
+    _VERSIONS[simulator] = version
+    return version
+
+
+# -- the forward model (runs in the workers) -------------------------------------------------------
+class _Material:
+    """Plain (eta, n, sigma_y) record handed to the solver (mpm does not import similarity)."""
+
+    def __init__(self, eta, n, sigma_y):
+        self.eta, self.n, self.sigma_y = float(eta), float(n), float(sigma_y)
+
+    def as_array(self):
+        return np.array([self.eta, self.n, self.sigma_y])
+
+    def to_dict(self):
+        return {"eta": self.eta, "n": self.n, "sigma_y": self.sigma_y}
+
+
+class _Setup:
+    def __init__(self, width_mm, height_mm):
+        self.width_mm, self.height_mm = float(width_mm), float(height_mm)
+        self.width_m, self.height_m = self.width_mm * 1e-3, self.height_mm * 1e-3
+
+
+def _material_and_setup(request: SimRequest):
+    try:  # the solver validates with the real value classes when they are importable
+        from similarity.space import Material, Setup  # noqa: PLC0415  (runtime only, no import-time dependency)
+
+        return Material(request.eta, request.n, request.sigma_y), Setup(request.width_mm, request.height_mm)
+    except ImportError:
+        return _Material(*request.material), _Setup(request.width_mm, request.height_mm)
+
+
+def run_mpm(request: SimRequest) -> SimResult:
+    """The default forward model: :func:`mpm.simulate` with the request's settings."""
+    import mpm.solver as solver
+    from mpm.camera import Camera
+
+    material, setup = _material_and_setup(request)
+    camera = Camera.from_dict(json.loads(request.camera)) if request.camera else None
+    sim = solver.simulate(
+        material, setup, density=request.density, cell_mm=request.cell_mm, dim=request.dim,
+        flow_rule=request.flow_rule, camera=camera, depth_mm=request.depth_mm,
+        image_size=tuple(request.image_size), precision=request.precision,
+    )
+    sil = None if getattr(sim, "silhouettes", None) is None else np.asarray(sim.silhouettes, dtype=bool)
+    return SimResult(sil, np.asarray(sim.front_m, float), np.asarray(sim.times, float), dict(sim.stats or {}))
+
+
+def _resolve(simulator: str) -> Callable[[SimRequest], SimResult]:
+    module_name, _, func = simulator.partition(":")
+    return getattr(importlib.import_module(module_name), func or "simulate")
+
+
+def run_one(request: SimRequest) -> SimResult:
+    """Run one request with its simulator; a failed simulation becomes a SimResult with ``error``."""
+    t0 = time.perf_counter()
+    try:
+        result = _resolve(request.simulator)(request)
+    except (RuntimeError, ArithmeticError) as exc:  # SimulationError is a RuntimeError
+        msg = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        result = SimResult(None, error=f"{type(exc).__name__}: {msg}")
+    result.wall_seconds = time.perf_counter() - t0
+    if result.ok and result.silhouettes is not None and not np.all(np.isfinite(result.front_m)):
+        result = SimResult(None, error="non-finite front position", wall_seconds=result.wall_seconds)
+    return result
+
+
+# -- executors --------------------------------------------------------------------------------------
+class InlineExecutor(Executor):
+    """Runs each task in the calling process at submit time (``workers=0``)."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        fut = Future()
+        try:
+            fut.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001  (delivered through the future)
+            fut.set_exception(exc)
+        return fut
+
+
+def _init_worker(threads: int) -> None:
+    os.environ.setdefault("VIRHEO_THREADS", str(threads))
+    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
+
+
+def local_executor(workers: int | None = None) -> Executor:
+    """Local worker processes ('spawn'); ``workers=0`` -> in-process. Default: one per CPU core."""
+    if workers == 0:
+        return InlineExecutor()
+    cores = os.cpu_count() or 1
+    workers = int(workers or cores)
+    threads = max(1, cores // workers)
+    return ProcessPoolExecutor(
+        max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker, initargs=(threads,),
+    )
+
+
+def as_executor(executor) -> Executor:
+    """Accept a concurrent.futures Executor or a dask.distributed Client (-> its executor)."""
+    if hasattr(executor, "get_executor") and not isinstance(executor, Executor):
+        return executor.get_executor()
+    return executor
+
+
+def connect(scheduler: str):
+    """A dask.distributed executor for ``--scheduler ADDRESS`` (tcp://host:port)."""
+    from distributed import Client
+
+    return Client(scheduler).get_executor()
+
+
+# -- evaluation -------------------------------------------------------------------------------------
+def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, executor=None,
+             on_result: Callable[[SimRequest, SimResult, bool], None] | None = None) -> list[SimResult]:
+    """Results of ``requests`` in order: from the store where present, else simulated via ``executor``.
+
+    Identical requests are simulated once.  Each new result is stored as soon as it completes.
+    ``on_result(request, result, cached)`` is called once per distinct request (for progress bars).
+    """
+    results: dict[str, SimResult] = {}
+    todo: dict[str, SimRequest] = {}
+    for req in requests:
+        key = req.key
+        if key in results or key in todo:
+            continue
+        hit = store.get(req) if store is not None else None
+        if hit is not None:
+            results[key] = hit
+            if on_result:
+                on_result(req, hit, True)
+        else:
+            todo[key] = req
+    if todo:
+        own = executor is None
+        ex = local_executor(0) if own else as_executor(executor)
+        futures = {ex.submit(run_one, req): key for key, req in todo.items()}
+        try:
+            for fut in as_completed(futures):
+                key = futures[fut]
+                res = fut.result()
+                if store is not None:
+                    store.put(todo[key], res)
+                results[key] = res
+                if on_result:
+                    on_result(todo[key], res, False)
+        finally:
+            for fut in futures:
+                fut.cancel()
+    return [results[req.key] for req in requests]
+
+
+def video_loss(sim_frames, ref_frames) -> float:
+    """Eq. 3 via :func:`mpm.loss.video_loss` (fraction of differing pixels, averaged over frames)."""
+    try:
+        from mpm.loss import video_loss as _video_loss
+    except ImportError:  # TODO(issue 4): drop once mpm/loss.py has landed
+        return float(np.mean(np.asarray(sim_frames, bool) != np.asarray(ref_frames, bool)))
+    return float(_video_loss(sim_frames, ref_frames))
+
+
+def evaluate_losses(jobs: Iterable[tuple[SimRequest, str, np.ndarray]], *, store: Store | None = None,
+                    executor=None, on_result=None) -> np.ndarray:
+    """Video losses (eq. 3) of ``(request, experiment_id, reference_frames)`` jobs; NaN for failures.
+
+    Cached losses are served from the store without loading arrays; missing simulations are run
+    through :func:`evaluate` and their losses stored.
+    """
+    jobs = list(jobs)
+    out = np.full(len(jobs), np.nan)
+    missing = []
+    for i, (req, exp_id, _) in enumerate(jobs):
+        cached = store.get_loss(req, exp_id) if store is not None else None
+        if cached is None:
+            missing.append(i)
+        else:
+            out[i] = cached
+            if on_result:
+                on_result(req, None, True)
+    if missing:
+        by_key: dict[str, list[int]] = {}
+        for i in missing:
+            by_key.setdefault(jobs[i][0].key, []).append(i)
+
+        def _done(req, res, cached):
+            for i in by_key.get(req.key, []):
+                _, exp_id, ref = jobs[i]
+                loss = video_loss(res.silhouettes, ref) if res.ok and res.silhouettes is not None else float("nan")
+                out[i] = loss
+                if store is not None:
+                    store.put_loss(req, exp_id, loss)
+            if on_result:
+                on_result(req, res, cached)
+
+        evaluate([jobs[i][0] for i in missing], store=store, executor=executor, on_result=_done)
+    return out
+
+
+def experiment_id(frames: np.ndarray, name: str = "") -> str:
+    """Content id of reference footage: hash of its packed silhouettes (and name)."""
+    f = np.asarray(frames, dtype=bool)
+    h = hashlib.sha256(np.packbits(f).tobytes())
+    h.update(repr(f.shape).encode())
+    return digest({"frames": h.hexdigest(), "name": name})[:32]

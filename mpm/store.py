@@ -1,0 +1,308 @@
+"""Simulation store: an SQLite index plus compressed arrays on disk, and optimiser checkpoints.
+
+Every simulation *request* (material, setup, density, depth, camera, cell width, dimension, flow
+rule, precision, image size, simulator and its code version) has a stable key, the SHA-256 of its
+canonical JSON.  A finished simulation is stored as
+
+* ``sims/<key[:2]>/<key>.npz``: silhouettes packed with ``np.packbits`` (8 x 540 x 960 bool ->
+  ~0.5 MB before, a few tens of kB after compression), front position per frame, frame times
+  and the solver's stats;
+* one row in ``index.sqlite`` (table ``sims``) with the request, status (``ok`` / ``failed``),
+  error text and wall time.  Failed simulations are remembered too: the simulator is
+  deterministic for a given request, so a failure is a result (the optimiser sees NaN).
+
+Video losses against an experiment are cached per (request key, experiment id) in ``losses``.
+
+Crash safety (kill -9 at any moment): arrays are written to a temporary file in the same folder
+and renamed with ``os.replace`` *before* the index row is committed, and each row is one SQLite
+transaction (WAL journal).  A row therefore always points at a complete file; a kill between the
+rename and the commit leaves an orphan file that the next ``put`` of the same request overwrites.
+
+CMA-ES checkpoints (any picklable object, e.g. the pycma ``CMAEvolutionStrategy``) live in
+``checkpoints/<run_id>.pkl``, replaced atomically the same way.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+import sqlite3
+import tempfile
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS sims (
+    key TEXT PRIMARY KEY,
+    request TEXT NOT NULL,
+    status TEXT NOT NULL,
+    error TEXT,
+    wall_seconds REAL,
+    created REAL NOT NULL
+);
+CREATE TABLE IF NOT EXISTS losses (
+    key TEXT NOT NULL,
+    experiment TEXT NOT NULL,
+    loss REAL,
+    PRIMARY KEY (key, experiment)
+);
+"""
+
+
+def _canonical(value) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=_json_default)
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def digest(value) -> str:
+    """SHA-256 hex digest of the canonical JSON of ``value`` (sorted keys, floats as repr)."""
+    return hashlib.sha256(_canonical(value).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class SimRequest:
+    """Everything that determines one dam-break simulation (SI, setup in mm).
+
+    ``camera`` is the camera's ``to_dict()`` as canonical JSON text (None: no silhouettes);
+    ``simulator`` names the forward model as ``"module:function"`` and ``code_version`` its
+    source version, so that a changed solver never serves stale results.
+    """
+
+    eta: float
+    n: float
+    sigma_y: float
+    width_mm: float
+    height_mm: float
+    density: float
+    depth_mm: float = 40.0
+    camera: str | None = None
+    cell_mm: float | None = None
+    dim: int = 3
+    flow_rule: str = "paper"
+    precision: str = "f32"
+    image_size: tuple = (960, 540)
+    simulator: str = "mpm.batch:run_mpm"
+    code_version: str = ""
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["image_size"] = list(self.image_size)
+        d["camera"] = json.loads(self.camera) if self.camera else None
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SimRequest":
+        d = dict(d)
+        d["image_size"] = tuple(d.get("image_size", (960, 540)))
+        cam = d.get("camera")
+        d["camera"] = _canonical(cam) if cam is not None else None
+        return cls(**d)
+
+    @property
+    def key(self) -> str:
+        return digest(self.to_dict())
+
+    @property
+    def material(self) -> tuple:
+        return (self.eta, self.n, self.sigma_y)
+
+
+@dataclass
+class SimResult:
+    """Outcome of one simulation: silhouettes (F, H, W) bool or None, front (F,) in m, stats.
+
+    ``error`` is None for a success, else a one-line description of the failure.
+    """
+
+    silhouettes: np.ndarray | None
+    front_m: np.ndarray | None = None
+    times: np.ndarray | None = None
+    stats: dict = field(default_factory=dict)
+    error: str | None = None
+    wall_seconds: float = float("nan")
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def pack(silhouettes: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """Bool (F, H, W) -> (uint8 packed bits, shape)."""
+    s = np.asarray(silhouettes, dtype=bool)
+    return np.packbits(s.reshape(s.shape[0], -1), axis=1), tuple(s.shape)
+
+
+def unpack(packed: np.ndarray, shape) -> np.ndarray:
+    shape = tuple(int(v) for v in shape)
+    flat = np.unpackbits(packed, axis=1, count=int(np.prod(shape[1:])))
+    return flat.reshape(shape).astype(bool)
+
+
+def _atomic_write(path: Path, write) -> None:
+    """Write through ``write(fileobj)`` to a temp file beside ``path``, then rename over it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+
+
+class Store:
+    """Persistent cache of simulations, their losses and optimiser checkpoints under ``root``."""
+
+    def __init__(self, root):
+        self.root = Path(root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._db = sqlite3.connect(self.root / "index.sqlite", timeout=60.0, isolation_level=None)
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        self._db.executescript(_SCHEMA)
+        self._sweep_temp_files()
+
+    # -- simulations -------------------------------------------------------------------------
+    def _array_path(self, key: str) -> Path:
+        return self.root / "sims" / key[:2] / f"{key}.npz"
+
+    def has(self, request: SimRequest) -> bool:
+        row = self._db.execute("SELECT 1 FROM sims WHERE key=?", (request.key,)).fetchone()
+        return row is not None
+
+    def get(self, request: SimRequest) -> SimResult | None:
+        """The stored result of ``request``, or None when it was never simulated."""
+        key = request.key
+        row = self._db.execute("SELECT status, error, wall_seconds FROM sims WHERE key=?", (key,)).fetchone()
+        if row is None:
+            return None
+        status, error, wall = row
+        if status != "ok":
+            return SimResult(None, error=error or "failed", wall_seconds=wall if wall is not None else float("nan"))
+        try:
+            with np.load(self._array_path(key)) as z:
+                sil = unpack(z["silhouettes"], z["shape"]) if z["shape"].size else None
+                front = z["front_m"]
+                times = z["times"]
+                stats = json.loads(str(z["stats"]))
+        except (FileNotFoundError, OSError, ValueError, KeyError):
+            return None  # index row without a readable file (should not happen): simulate again
+        return SimResult(sil, front, times, stats, None, wall if wall is not None else float("nan"))
+
+    def put(self, request: SimRequest, result: SimResult) -> None:
+        """Persist ``result``: arrays first (atomic rename), then the index row (one transaction)."""
+        key = request.key
+        if result.ok:
+            if result.silhouettes is not None:
+                packed, shape = pack(result.silhouettes)
+            else:
+                packed, shape = np.zeros((0, 0), np.uint8), ()
+            arrays = dict(
+                silhouettes=packed,
+                shape=np.asarray(shape, dtype=np.int64),
+                front_m=np.asarray(result.front_m if result.front_m is not None else [], dtype=float),
+                times=np.asarray(result.times if result.times is not None else [], dtype=float),
+                stats=np.asarray(_canonical(result.stats or {})),
+            )
+            _atomic_write(self._array_path(key), lambda fh: np.savez_compressed(fh, **arrays))
+        status = "ok" if result.ok else "failed"
+        with self._db:  # sqlite3 context: BEGIN ... COMMIT
+            self._db.execute("BEGIN IMMEDIATE")
+            self._db.execute(
+                "INSERT OR REPLACE INTO sims (key, request, status, error, wall_seconds, created) VALUES (?,?,?,?,?,?)",
+                (key, _canonical(request.to_dict()), status, result.error, float(result.wall_seconds), time.time()),
+            )
+
+    def count(self, status: str | None = None) -> int:
+        """Number of stored simulations (optionally only those with ``status`` 'ok' or 'failed')."""
+        if status is None:
+            return self._db.execute("SELECT COUNT(*) FROM sims").fetchone()[0]
+        return self._db.execute("SELECT COUNT(*) FROM sims WHERE status=?", (status,)).fetchone()[0]
+
+    def requests(self) -> list[SimRequest]:
+        rows = self._db.execute("SELECT request FROM sims ORDER BY created").fetchall()
+        return [SimRequest.from_dict(json.loads(r[0])) for r in rows]
+
+    # -- losses --------------------------------------------------------------------------------
+    def get_loss(self, request: SimRequest, experiment_id: str) -> float | None:
+        """Cached video loss of ``request`` against experiment ``experiment_id`` (NaN: failed), or None."""
+        row = self._db.execute(
+            "SELECT loss FROM losses WHERE key=? AND experiment=?", (request.key, experiment_id)
+        ).fetchone()
+        if row is None:
+            return None
+        return float("nan") if row[0] is None else float(row[0])
+
+    def put_loss(self, request: SimRequest, experiment_id: str, loss: float) -> None:
+        value = None if not np.isfinite(loss) else float(loss)
+        with self._db:
+            self._db.execute("BEGIN IMMEDIATE")
+            self._db.execute(
+                "INSERT OR REPLACE INTO losses (key, experiment, loss) VALUES (?,?,?)",
+                (request.key, experiment_id, value),
+            )
+
+    # -- checkpoints ---------------------------------------------------------------------------
+    def _checkpoint_path(self, run_id: str) -> Path:
+        return self.root / "checkpoints" / f"{run_id}.pkl"
+
+    def save_checkpoint(self, run_id: str, state) -> None:
+        """Pickle ``state`` (e.g. a dict holding the CMAEvolutionStrategy) atomically."""
+        data = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
+        _atomic_write(self._checkpoint_path(run_id), lambda fh: fh.write(data))
+
+    def load_checkpoint(self, run_id: str):
+        path = self._checkpoint_path(run_id)
+        if not path.exists():
+            return None
+        with open(path, "rb") as fh:
+            return pickle.load(fh)
+
+    # -- housekeeping --------------------------------------------------------------------------
+    def _sweep_temp_files(self, older_than_s: float = 3600.0) -> None:
+        """Remove temp files left by killed writers (only old ones: others may be writing now)."""
+        now = time.time()
+        for sub in ("sims", "checkpoints"):
+            base = self.root / sub
+            if not base.exists():
+                continue
+            for tmp in base.rglob("*.tmp"):
+                try:
+                    if now - tmp.stat().st_mtime > older_than_s:
+                        tmp.unlink()
+                except FileNotFoundError:
+                    pass
+
+    def close(self) -> None:
+        self._db.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __getstate__(self):  # a Store travels to workers as its path only
+        return {"root": str(self.root)}
+
+    def __setstate__(self, state):
+        self.__init__(state["root"])

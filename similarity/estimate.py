@@ -1,0 +1,417 @@
+"""ViRheometry (Algorithm 1): CMA-ES estimation of Herschel-Bulkley parameters from dam-break footage.
+
+Stage k optimises the mean video loss (eq. 3) over the first k setups with pycma in the normalised
+material space [0, 1]^3 (bounded, population 7).  Stage 1 starts at the centre of the space, stage k
+at the previous estimate.  Step size: the paper's Sigma = (2/3)^(k-1) is in the authors' internal
+[0, 10]^3 box (REFERENCE_SPEC 4.2), i.e. sigma0 = 0.1 * (2/3)^(k-1) in [0, 1]^3; a preset may scale
+it (``Preset.sigma0``).  We return the best *evaluated* candidate over the whole stage (the reference
+returned the best of the last generation, REFERENCE_SPEC 4.2 / 7.11).
+
+Failed simulations give NaN.  NaN candidates are resampled from the same search distribution
+(``es.ask(1)``, up to ``RESAMPLE`` times); if some stay NaN, pycma's ``tell`` replaces them by the
+median of the finite values (it warns), so one failure never stops a run.
+
+Every simulation goes through :mod:`mpm.batch` and the :class:`mpm.store.Store`; the CMA-ES object
+(with its private RandomState) is checkpointed after every generation.  Re-running the same call
+after a kill resumes from the last checkpoint, serves the interrupted generation's finished
+simulations from the store, and -- for a deterministic forward model -- ends with the same estimate.
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Callable, Sequence
+
+import cma
+import numpy as np
+
+from mpm import batch
+from mpm.store import Store, digest
+from similarity.space import Material, Setup, center, denormalize, e_rel, normalize
+
+POPSIZE = 7  # = 4 + floor(3 ln 3) for 3 parameters (REFERENCE_SPEC 4.2)
+RESAMPLE = 3  # rounds of resampling NaN candidates within one generation
+PAPER_SIGMA0 = 0.1  # Sigma = 1.0 in the reference's [0, 10]^3 box
+
+
+@dataclass(frozen=True)
+class Preset:
+    """Accuracy/time trade-off: CMA-ES budget and the forward model's resolution."""
+
+    name: str
+    generations: int  # CMA-ES generations per stage (paper: 100)
+    cell_mm: float | None  # MPM cell width (None: solver default)
+    dim: int = 3
+    sigma0: float = PAPER_SIGMA0  # stage-1 step size in [0, 1]^3; stage k uses sigma0 * (2/3)^(k-1)
+    flow_rule: str = "paper"
+    precision: str = "f32"
+    popsize: int = POPSIZE
+
+
+PRESETS = {
+    # the paper's budget: 100 generations x 7 per stage, the reference's 1.26 mm cells
+    "paper": Preset("paper", generations=100, cell_mm=1.26),
+    # tuned for `virheo demo` on a 2-core CPU (see docs/performance.md)
+    "quick": Preset("quick", generations=14, cell_mm=5.0, sigma0=0.2),
+}
+
+
+def get_preset(preset) -> Preset:
+    if isinstance(preset, Preset):
+        return preset
+    try:
+        return PRESETS[str(preset)]
+    except KeyError:
+        raise ValueError(f"unknown preset '{preset}': choose one of {', '.join(PRESETS)}") from None
+
+
+# -- experiments ---------------------------------------------------------------------------------------
+@dataclass
+class EmulatedExperiment:
+    """Experiment-like footage simulated from a known material (same fields as mpm.experiment.Experiment)."""
+
+    name: str
+    width_mm: float
+    height_mm: float
+    depth_mm: float
+    density: float
+    camera: object
+    frames: np.ndarray
+    truth: Material
+    initial_material: dict | None = None
+    path: Path | None = None
+    warnings: list = field(default_factory=list)
+
+    @property
+    def setup(self) -> Setup:
+        return Setup(self.width_mm, self.height_mm)
+
+
+def setup_of(experiment) -> Setup:
+    return Setup(float(experiment.width_mm), float(experiment.height_mm))
+
+
+def _image_size(experiment) -> tuple[int, int]:
+    frames = np.asarray(experiment.frames)
+    return int(frames.shape[-1]), int(frames.shape[-2])
+
+
+def _request(material, experiment, preset: Preset, simulator: str, image_size=None):
+    return batch.request_for(
+        material, setup_of(experiment), density=float(experiment.density), depth_mm=float(experiment.depth_mm),
+        camera=experiment.camera, cell_mm=preset.cell_mm, dim=preset.dim, flow_rule=preset.flow_rule,
+        precision=preset.precision, image_size=image_size or _image_size(experiment), simulator=simulator,
+    )
+
+
+def _default_camera():
+    from mpm.camera import Camera
+
+    return Camera.default()
+
+
+def emulate(material: Material, setups: Sequence[Setup], *, density: float = 1000.0, camera=None,
+            depth_mm: float = 40.0, preset="quick", store: Store | None = None, executor=None,
+            simulator: str = batch.DEFAULT_SIMULATOR, image_size=(960, 540)) -> list[EmulatedExperiment]:
+    """Footage of ``material`` in each setup, simulated with the preset's forward model (ground truth M*).
+
+    ``camera``: a Camera (e.g. ``mpm.experiment.load(dir).camera``) or None for ``Camera.default()``.
+    """
+    preset = get_preset(preset)
+    camera = camera if camera is not None else _default_camera()
+    shells = [EmulatedExperiment(f"emulated_{Setup(s.width_mm, s.height_mm)}", float(s.width_mm), float(s.height_mm),
+                                 float(depth_mm), float(density), camera, np.zeros((0, 0, 0), bool), material)
+              for s in setups]
+    reqs = [_request(material, e, preset, simulator, image_size) for e in shells]
+    results = batch.evaluate(reqs, store=store, executor=executor)
+    for e, r in zip(shells, results):
+        if not r.ok or r.silhouettes is None:
+            raise RuntimeError(f"ground-truth simulation of {e.name} failed: {r.error}")
+        e.frames = r.silhouettes
+    return shells
+
+
+# -- results -------------------------------------------------------------------------------------------
+@dataclass
+class Stage:
+    """One CMA-ES stage of Algorithm 1 (all setups so far)."""
+
+    setups: list[str]
+    x0: list[float]
+    sigma0: float
+    material: Material
+    loss: float
+    evaluations: int  # candidate evaluations (each costs len(setups) simulations)
+    simulations: int
+    generations: int
+    history: list[dict] = field(default_factory=list)  # per generation: simulations, best loss, best x
+    next_setup: str | None = None
+    wall_seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["material"] = self.material.to_dict()
+        return d
+
+
+@dataclass
+class Estimate:
+    material: Material
+    loss: float
+    stages: list[Stage]
+    evaluations: int
+    simulations: int
+    wall_seconds: float
+    next_setup: Setup | None
+    preset: str
+    seed: int
+    setups: list[str]
+
+    def to_dict(self) -> dict:
+        return {
+            "estimate": self.material.to_dict(),
+            "loss": self.loss,
+            "setups": self.setups,
+            "next_setup": None if self.next_setup is None else str(self.next_setup),
+            "evaluations": self.evaluations,
+            "simulations": self.simulations,
+            "wall_seconds": self.wall_seconds,
+            "preset": self.preset,
+            "seed": self.seed,
+            "stages": [s.to_dict() for s in self.stages],
+        }
+
+
+def propose_next_setup(material: Material, done: Sequence[Setup]) -> Setup | None:
+    """Section 6: the setup whose loss normal is most perpendicular to those of ``done`` (issue 2)."""
+    try:
+        from similarity.design import next_setup
+    except ImportError:
+        warnings.warn("similarity.design is not available: no next setup proposed", RuntimeWarning, stacklevel=2)
+        return None
+    return next_setup(material, list(done))
+
+
+# -- Algorithm 1 ---------------------------------------------------------------------------------------
+class _Objective:
+    """Mean video loss over the stage's experiments for a batch of normalised candidates."""
+
+    def __init__(self, experiments, preset, simulator, store, executor, progress):
+        self.experiments = list(experiments)
+        self.exp_ids = [batch.experiment_id(e.frames, e.name) for e in self.experiments]
+        self.preset, self.simulator = preset, simulator
+        self.store, self.executor, self.progress = store, executor, progress
+        self.simulations = 0
+
+    def requests(self, x):
+        m = Material.from_array(denormalize(np.clip(x, 0.0, 1.0)))
+        return [_request(m, e, self.preset, self.simulator) for e in self.experiments]
+
+    def __call__(self, X) -> np.ndarray:
+        jobs = []
+        for x in X:
+            for req, eid, e in zip(self.requests(x), self.exp_ids, self.experiments):
+                jobs.append((req, eid, e.frames))
+        self.simulations += len(jobs)
+        tick = (lambda req, res, cached: self.progress({"event": "simulation", "cached": cached})) if self.progress else None
+        losses = batch.evaluate_losses(jobs, store=self.store, executor=self.executor, on_result=tick)
+        return losses.reshape(len(X), len(self.experiments)).mean(axis=1)  # NaN if any setup failed
+
+
+def _stage_id(objective: _Objective, x0, sigma0, seed, generations, preset: Preset) -> str:
+    reqs = objective.requests(np.asarray(x0))
+    return digest({
+        "experiments": objective.exp_ids, "x0": [float(v) for v in x0], "sigma0": float(sigma0), "seed": int(seed),
+        "generations": int(generations), "popsize": preset.popsize,
+        "forward": [r.to_dict() | {"eta": 0, "n": 0, "sigma_y": 0} for r in reqs],
+    })[:32]
+
+
+def _cma_options(generations: int, popsize: int, seed: int) -> dict:
+    return {
+        "bounds": [0.0, 1.0], "popsize": popsize, "maxiter": generations, "verbose": -9,
+        "randn": np.random.RandomState(seed).randn,  # private RNG: pickled with the strategy
+        "seed": np.nan, "tolflatfitness": 10**9,  # flat silhouettes early on must not end the stage
+    }
+
+
+def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, generations: int, store: Store,
+              executor=None, simulator: str = batch.DEFAULT_SIMULATOR,
+              progress: Callable[[dict], None] | None = None, stage_index: int = 1) -> Stage:
+    """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0``; resumable."""
+    t0 = time.perf_counter()
+    objective = _Objective(experiments, preset, simulator, store, executor, progress)
+    run_id = _stage_id(objective, x0, sigma0, seed, generations, preset)
+    state = store.load_checkpoint(run_id)
+    if state is not None and state.get("stage") is not None:
+        return state["stage"]
+    if state is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            es = cma.CMAEvolutionStrategy(list(map(float, x0)), float(sigma0), _cma_options(generations, preset.popsize, seed))
+        state = {"es": es, "generation": 0, "history": [], "best_x": None, "best_loss": np.inf,
+                 "evaluations": 0, "simulations": 0, "wall_seconds": 0.0, "stage": None}
+    es = state["es"]
+    setups = [str(setup_of(e)) for e in experiments]
+    if progress:
+        progress({"event": "stage", "stage": stage_index, "setups": setups, "generations": generations,
+                  "generation": state["generation"]})
+    while state["generation"] < generations and not _stopped(es):
+        X = [np.asarray(x, float) for x in es.ask()]
+        F = objective(X)
+        evaluations = len(X)
+        for _ in range(RESAMPLE):
+            bad = np.flatnonzero(~np.isfinite(F))
+            if bad.size == 0:
+                break
+            for i in bad:
+                X[i] = np.asarray(es.ask(1)[0], float)
+            F[bad] = objective([X[i] for i in bad])
+            evaluations += bad.size
+        finite = np.isfinite(F)
+        if finite.any():
+            i = int(np.nanargmin(np.where(finite, F, np.inf)))
+            if F[i] < state["best_loss"]:
+                state["best_loss"], state["best_x"] = float(F[i]), X[i].copy()
+        if finite.sum() >= 2:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # pycma warns when it replaces NaN by the median
+                es.tell(X, [float(f) if np.isfinite(f) else np.nan for f in F])
+        else:  # nothing to learn from this generation; keep the distribution, count the generation
+            es.countiter += 1
+        state["generation"] += 1
+        state["evaluations"] += evaluations
+        state["simulations"] += evaluations * len(experiments)
+        state["history"].append({
+            "generation": state["generation"], "simulations": state["simulations"],
+            "best_loss": state["best_loss"],
+            "best_x": None if state["best_x"] is None else [float(v) for v in state["best_x"]],
+            "mean_x": [float(v) for v in es.mean], "sigma": float(es.sigma),
+        })
+        state["wall_seconds"] += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        store.save_checkpoint(run_id, state)
+        if progress:
+            progress({"event": "generation", "stage": stage_index, "generation": state["generation"],
+                      "generations": generations, "best_loss": state["best_loss"]})
+    if state["best_x"] is None:
+        raise RuntimeError(f"every simulation failed in stage {stage_index} ({', '.join(setups)})")
+    stage = Stage(
+        setups=setups, x0=[float(v) for v in x0], sigma0=float(sigma0),
+        material=Material.from_array(denormalize(np.clip(state["best_x"], 0, 1))), loss=state["best_loss"],
+        evaluations=state["evaluations"], simulations=state["simulations"], generations=state["generation"],
+        history=state["history"], wall_seconds=state["wall_seconds"] + time.perf_counter() - t0,
+    )
+    state["stage"] = stage
+    store.save_checkpoint(run_id, state)
+    return stage
+
+
+def _stopped(es) -> bool:
+    stop = dict(es.stop())
+    stop.pop("maxiter", None)  # our own generation counter decides that
+    return bool(stop)
+
+
+def default_store() -> Store:
+    return Store(Path.home() / ".cache" / "virheometry" / "store")
+
+
+def estimate(experiments, *, preset="quick", seed: int = 0, executor=None, store: Store | None = None,
+             generations: int | None = None, workers: int | None = None,
+             simulator: str = batch.DEFAULT_SIMULATOR, progress: Callable[[dict], None] | None = None,
+             n_setups: int | None = None, acquire: Callable[[Setup], object] | None = None,
+             propose: Callable[[Material, list], Setup | None] = propose_next_setup) -> Estimate:
+    """Algorithm 1 on ``experiments`` (objects like :class:`mpm.experiment.Experiment`), in order.
+
+    Stage k fits the first k experiments.  After every stage the next setup is proposed with
+    ``propose`` (default :func:`similarity.design.next_setup`); with ``acquire`` (a callable
+    Setup -> experiment, e.g. an emulator) the proposed setup is filmed and added until
+    ``n_setups`` are done.  ``executor``: any concurrent.futures Executor or dask Client; default:
+    ``workers`` local processes (0: in-process).  Returns the best evaluated candidate.
+    """
+    experiments = list(experiments)
+    if not experiments:
+        raise ValueError("estimate needs at least one experiment")
+    preset = get_preset(preset)
+    generations = int(generations or preset.generations)
+    if generations < 1:
+        raise ValueError(f"generations={generations} must be >= 1")
+    n_setups = int(n_setups or len(experiments))
+    store = store if store is not None else default_store()
+    own = executor is None and workers != 0
+    ex = batch.local_executor(workers) if own else (batch.local_executor(0) if executor is None else executor)
+    t0 = time.perf_counter()
+    stages: list[Stage] = []
+    x0 = normalize(center().as_array())
+    try:
+        k = 0
+        while k < n_setups:
+            k += 1
+            if k > len(experiments):
+                proposed = stages[-1].next_setup
+                if acquire is None or proposed is None:
+                    break
+                experiments.append(acquire(Setup.parse(proposed)))
+            sigma0 = preset.sigma0 * (2.0 / 3.0) ** (k - 1)
+            stage = run_stage(experiments[:k], x0=x0, sigma0=sigma0, preset=preset, seed=seed + k - 1,
+                              generations=generations, store=store, executor=ex, simulator=simulator,
+                              progress=progress, stage_index=k)
+            done = [setup_of(e) for e in experiments[:k]]
+            nxt = propose(stage.material, done) if propose else None
+            stage.next_setup = None if nxt is None else str(Setup(nxt.width_mm, nxt.height_mm))
+            stages.append(stage)
+            x0 = normalize(stage.material.as_array())
+    finally:
+        if own and hasattr(ex, "shutdown"):
+            ex.shutdown(wait=True, cancel_futures=True)
+    last = stages[-1]
+    return Estimate(
+        material=last.material, loss=last.loss, stages=stages,
+        evaluations=sum(s.evaluations for s in stages), simulations=sum(s.simulations for s in stages),
+        wall_seconds=time.perf_counter() - t0,
+        next_setup=None if last.next_setup is None else Setup.parse(last.next_setup),
+        preset=preset.name, seed=int(seed), setups=last.setups,
+    )
+
+
+def emulate_virheometry(truth: Material, first_setup: Setup, *, n_setups: int = 2, preset="quick", seed: int = 0,
+                        density: float = 1000.0, camera=None, store: Store | None = None, executor=None,
+                        workers: int | None = None, generations: int | None = None,
+                        simulator: str = batch.DEFAULT_SIMULATOR, progress=None,
+                        propose: Callable = propose_next_setup) -> tuple[Estimate, list[EmulatedExperiment]]:
+    """Sequential ViRheometry on emulated footage: film ``first_setup``, fit, film the proposed setup, fit again.
+
+    Returns the estimate and the emulated experiments (their ``truth`` is ``truth``).
+    """
+    preset = get_preset(preset)
+    store = store if store is not None else default_store()
+    own = executor is None and workers != 0
+    ex = batch.local_executor(workers) if own else (batch.local_executor(0) if executor is None else executor)
+    filmed: list[EmulatedExperiment] = []
+
+    def acquire(setup: Setup):
+        e = emulate(truth, [setup], density=density, camera=camera, preset=preset, store=store, executor=ex,
+                    simulator=simulator)[0]
+        filmed.append(e)
+        return e
+
+    try:
+        first = acquire(first_setup)
+        est = estimate([first], preset=preset, seed=seed, executor=ex, store=store, generations=generations,
+                       simulator=simulator, progress=progress, n_setups=n_setups, acquire=acquire, propose=propose)
+    finally:
+        if own and hasattr(ex, "shutdown"):
+            ex.shutdown(wait=True, cancel_futures=True)
+    return est, filmed
+
+
+def e_rel_history(stage: Stage, truth: Material) -> list[tuple[int, float]]:
+    """(simulation count, E_rel of the best candidate so far) per generation (Fig. 10)."""
+    out = []
+    for h in stage.history:
+        if h["best_x"] is not None:
+            out.append((h["simulations"], e_rel(truth, Material.from_array(denormalize(h["best_x"])))))
+    return out
