@@ -236,10 +236,8 @@ def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, exec
 
 def video_loss(sim_frames, ref_frames) -> float:
     """Eq. 3 via :func:`mpm.loss.video_loss` (fraction of differing pixels, averaged over frames)."""
-    try:
-        from mpm.loss import video_loss as _video_loss
-    except ImportError:  # TODO(issue 4): drop once mpm/loss.py has landed
-        return float(np.mean(np.asarray(sim_frames, bool) != np.asarray(ref_frames, bool)))
+    from mpm.loss import video_loss as _video_loss
+
     return float(_video_loss(sim_frames, ref_frames))
 
 

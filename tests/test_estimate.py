@@ -1,0 +1,127 @@
+"""Algorithm 1 on a cheap deterministic forward model: reproducibility, best-ever candidate, NaN, kill -9."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mpm import batch
+from mpm.store import Store
+from similarity import estimate as E
+from similarity.space import Material, Setup, denormalize, e_rel
+
+SIM = "fake_forward:simulate"
+TRUTH = Material(3.0, 0.6, 12.0)
+SIZE = (192, 108)
+TESTS = Path(__file__).resolve().parent
+
+
+def _footage(store, setups=((30, 50), (60, 25)), truth=TRUTH):
+    return E.emulate(truth, [Setup(*s) for s in setups], store=store, executor=batch.InlineExecutor(),
+                     simulator=SIM, image_size=SIZE)
+
+
+def _fixed(material, done):
+    return Setup(60, 25)
+
+
+def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
+    exps = _footage(Store(tmp_path / "truth"))
+    runs = []
+    for name in ("a", "b"):
+        store = Store(tmp_path / name)
+        runs.append((E.estimate(exps, seed=7, workers=0, store=store, simulator=SIM, generations=12, propose=_fixed), store))
+    (a, store_a), (b, _) = runs
+    assert a.material == b.material and a.loss == b.loss
+    assert [s.evaluations for s in a.stages] == [12 * 7, 12 * 7]  # no NaN here: no resampling
+    assert a.simulations == 12 * 7 * 1 + 12 * 7 * 2
+    # the returned candidate is the best evaluated one of the final stage, recomputed from the store
+    eids = [batch.experiment_id(e.frames, e.name) for e in exps]
+    best = min(
+        np.mean([store_a.get_loss(E._request(Material.from_array(denormalize(h)), e, E.get_preset("quick"), SIM), eid)
+                 for e, eid in zip(exps, eids)])
+        for h in (gen["best_x"] for gen in a.stages[1].history)
+    )
+    assert a.loss == pytest.approx(best)
+    assert a.stages[1].x0 == pytest.approx(list(E.normalize(a.stages[0].material.as_array())))
+    assert a.stages[1].sigma0 == pytest.approx(a.stages[0].sigma0 * 2 / 3)
+    assert a.next_setup == Setup(60, 25)
+    # stage losses never increase along a stage's history; two setups pin the fake model down
+    hist = [h["best_loss"] for h in a.stages[1].history]
+    assert all(x >= y for x, y in zip(hist, hist[1:]))
+    assert e_rel(TRUTH, a.material) < e_rel(TRUTH, E.center())
+
+
+def test_nan_from_failed_simulations_is_resampled(tmp_path):
+    store = Store(tmp_path)
+    exps = _footage(store, setups=((30, 50),))
+    est = E.estimate(exps, seed=3, workers=0, store=store, simulator="fake_forward:simulate_flaky",
+                     generations=10, propose=_fixed)
+    assert store.count("failed") > 0
+    assert np.isfinite(est.loss) and est.material.in_space()
+    stage = est.stages[0]
+    assert stage.generations == 10 and stage.evaluations > 10 * 7  # failed candidates were redrawn
+    assert est.loss < 0.05
+
+
+def test_propose_chains_setups_with_acquire(tmp_path):
+    store = Store(tmp_path)
+    est, filmed = E.emulate_virheometry(TRUTH, Setup(30, 50), n_setups=2, seed=1, store=store, workers=0,
+                                        generations=4, simulator=SIM, propose=_fixed)
+    assert [str(s) for s in (f.setup for f in filmed)] == ["30x50", "60x25"]
+    assert est.setups == ["30x50", "60x25"] and len(est.stages) == 2
+
+
+_RUNNER = textwrap.dedent("""
+    import json, sys
+    sys.path[:0] = [{repo!r}, {tests!r}]
+    from mpm.store import Store
+    from similarity import estimate as E
+    from similarity.space import Material, Setup
+    store = Store(sys.argv[1])
+    from mpm import batch
+    exps = E.emulate(Material(3.0, 0.6, 12.0), [Setup(30, 50), Setup(60, 25)], store=store,
+                     executor=batch.InlineExecutor(), simulator="fake_forward:simulate", image_size=(192, 108))
+    est = E.estimate(exps, seed=11, workers=0, store=store, simulator="fake_forward:simulate", generations=10,
+                     propose=lambda m, d: Setup(60, 25))
+    print(json.dumps(est.material.to_dict()), flush=True)
+""")
+
+
+def _run(store_dir, log, *, kill_after=None):
+    env = dict(os.environ, FAKE_FORWARD_LOG=str(log), FAKE_FORWARD_DELAY="0.004")
+    code = _RUNNER.format(repo=str(TESTS.parent), tests=str(TESTS))
+    proc = subprocess.Popen([sys.executable, "-c", code, str(store_dir)], env=env, stdout=subprocess.PIPE, text=True)
+    if kill_after is None:
+        out, _ = proc.communicate(timeout=120)
+        assert proc.returncode == 0
+        return json.loads(out.strip().splitlines()[-1])
+    deadline = time.time() + 60
+    while time.time() < deadline:  # wait until the second stage is under way
+        if log.exists() and len(log.read_text().split()) >= kill_after:
+            break
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    return None
+
+
+def test_kill_9_and_resume(tmp_path):
+    reference = _run(tmp_path / "uninterrupted", tmp_path / "ref.log")
+    store_dir, log1, log2 = tmp_path / "killed", tmp_path / "first.log", tmp_path / "second.log"
+    _run(store_dir, log1, kill_after=7 * 10 + 40)  # stage 1 done (70 sims), stage 2 part-way
+    finished = {r.key for r in Store(store_dir).requests()}
+    assert 70 < len(finished) < 2 + 70 + 140
+    resumed = _run(store_dir, log2)
+    redone = set(log2.read_text().split()) & finished
+    assert not redone, f"{len(redone)} finished simulations were run again"
+    assert resumed == reference
+    ref_count = len(set((tmp_path / "ref.log").read_text().split()))
+    assert Store(store_dir).count() == ref_count  # same simulations in the end, none extra
