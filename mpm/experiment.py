@@ -302,3 +302,38 @@ def write(path, frames, *, width_mm: float, height_mm: float, camera: Camera, de
     for k, mask in enumerate(masks, start=1):
         _png(mask, folder / f"config_{k:02d}.png")
     return folder
+
+
+# ----------------------------------------------------------------------------------- setup vs footage
+SWAP_MARGIN = 0.05  # the W/H-swapped box fitting frame 1 better than this flags the stated setup
+MIN_CUBOID_IOU = 0.6  # below this the stated setup (or camera) does not match frame 1
+
+
+def cuboid_mask(exp: Experiment, *, swap: bool = False) -> np.ndarray:
+    """The projected initial cuboid [0, W] x [0, H] x [0, D] (W and H exchanged when ``swap``)."""
+    from mpm.silhouette import box_mask
+
+    w, h = (exp.height_mm, exp.width_mm) if swap else (exp.width_mm, exp.height_mm)
+    return box_mask(exp.camera, w / 1000.0, h / 1000.0, exp.depth_mm / 1000.0, exp.image_size)
+
+
+def cuboid_fit(exp: Experiment) -> tuple[float, float]:
+    """IoU of frame 1 with the projected initial cuboid, as stated and with W and H swapped."""
+    from mpm.loss import iou
+
+    if len(exp.frames) == 0:
+        raise ValueError(f"{exp.name}: no frames loaded")
+    return iou(cuboid_mask(exp), exp.frames[0]), iou(cuboid_mask(exp, swap=True), exp.frames[0])
+
+
+def setup_warnings(exp: Experiment) -> list[str]:
+    """One-line warnings when the stated setup fits frame 1 badly or clearly worse than W/H swapped."""
+    fit, swapped = cuboid_fit(exp)
+    notes = []
+    if swapped > fit + SWAP_MARGIN:
+        notes.append(f"the stated setup W={exp.width_mm:g} H={exp.height_mm:g} mm fits frame 1 clearly worse "
+                     f"(IoU {fit:.3f}) than with W and H swapped (IoU {swapped:.3f}): are W and H swapped?")
+    elif fit < MIN_CUBOID_IOU:
+        notes.append(f"the projected initial cuboid fits frame 1 poorly (IoU {fit:.3f} < {MIN_CUBOID_IOU}): "
+                     f"check the setup and the camera")
+    return notes
