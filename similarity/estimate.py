@@ -415,3 +415,15 @@ def e_rel_history(stage: Stage, truth: Material) -> list[tuple[int, float]]:
         if h["best_x"] is not None:
             out.append((h["simulations"], e_rel(truth, Material.from_array(denormalize(h["best_x"])))))
     return out
+
+
+def simulated_frames(material: Material, experiments, *, preset="quick", store: Store | None = None, executor=None,
+                     simulator: str = batch.DEFAULT_SIMULATOR) -> list:
+    """Silhouettes of ``material`` in each experiment's setup (None where the simulation failed).
+
+    For an estimate's material these come straight from the store: the estimator simulated them.
+    """
+    preset = get_preset(preset)
+    reqs = [_request(material, e, preset, simulator) for e in experiments]
+    ex = executor if executor is not None else batch.InlineExecutor()
+    return [r.silhouettes if r.ok else None for r in batch.evaluate(reqs, store=store, executor=ex)]

@@ -1,0 +1,185 @@
+"""Report writers: result.json, Herschel-Bulkley flow-curve plots, silhouette overlays, progress bars."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+SHEAR_RATES = np.logspace(-2, 4, 200)  # 1/s, the range of the paper's flow-curve plots (Fig. 10)
+
+# overlay colours (RGB): both, captured only, simulated only, background
+_BOTH, _CAPTURED, _SIMULATED, _BACKGROUND = (70, 70, 70), (40, 110, 230), (230, 60, 40), (255, 255, 255)
+
+
+def _default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    if hasattr(o, "to_dict"):
+        return o.to_dict()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def _clean(o):
+    """Replace non-finite floats by None (strict JSON)."""
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    return o
+
+
+def write_json(path, data: Mapping) -> Path:
+    """Write ``data`` as indented JSON atomically (temp file + rename)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(_clean(json.loads(json.dumps(data, default=_default))), indent=2, allow_nan=False)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def flow_curve_png(path, curves: Mapping[str, object], *, dashed: Mapping[str, object] | None = None,
+                   title: str = "Herschel-Bulkley flow curves") -> Path:
+    """Stress vs shear rate (eq. 1), log-log over 0.01..1e4 1/s. ``curves``: label -> Material.
+
+    ``dashed``: further curves drawn dotted (e.g. the ground truth or the paper's estimate).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.5, 4.2), dpi=120)
+    for label, m in curves.items():
+        ax.loglog(SHEAR_RATES, np.maximum(m.stress(SHEAR_RATES), 1e-6), lw=2,
+                  label=f"{label}: eta={m.eta:.3g} Pa s^n, n={m.n:.3g}, sigma_y={m.sigma_y:.3g} Pa")
+    for label, m in (dashed or {}).items():
+        ax.loglog(SHEAR_RATES, np.maximum(m.stress(SHEAR_RATES), 1e-6), ":", lw=2, color="k",
+                  label=f"{label}: eta={m.eta:.3g} Pa s^n, n={m.n:.3g}, sigma_y={m.sigma_y:.3g} Pa")
+    ax.set_xlim(SHEAR_RATES[0], SHEAR_RATES[-1])
+    ax.set_xlabel("shear rate [1/s]")
+    ax.set_ylabel("shear stress [Pa]")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=6, loc="upper left")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def overlay(simulated: np.ndarray, captured: np.ndarray) -> np.ndarray:
+    """RGB image of one frame: grey where both show material, blue captured only, red simulated only."""
+    s, c = np.asarray(simulated, bool), np.asarray(captured, bool)
+    img = np.empty(s.shape + (3,), np.uint8)
+    img[:] = _BACKGROUND
+    img[s & c] = _BOTH
+    img[c & ~s] = _CAPTURED
+    img[s & ~c] = _SIMULATED
+    return img
+
+
+def overlay_pngs(folder, simulated: np.ndarray, captured: np.ndarray, *, prefix: str = "overlay") -> list[Path]:
+    """One PNG per frame, ``<prefix>_01.png`` ...: simulated | captured | difference side by side."""
+    from PIL import Image
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for k, (s, c) in enumerate(zip(simulated, captured), start=1):
+        s, c = np.asarray(s, bool), np.asarray(c, bool)
+        panels = [np.where(s[..., None], _SIMULATED, _BACKGROUND), np.where(c[..., None], _CAPTURED, _BACKGROUND),
+                  overlay(s, c)]
+        sep = np.full((s.shape[0], 4, 3), 0, np.uint8)
+        row = np.concatenate([panels[0], sep, panels[1], sep, panels[2]], axis=1).astype(np.uint8)
+        p = folder / f"{prefix}_{k:02d}.png"
+        Image.fromarray(row).save(p, optimize=True)
+        paths.append(p)
+    return paths
+
+
+@contextmanager
+def progress_bars(enabled: bool = True):
+    """Rich progress bars fed by the estimator's progress events; yields the callback (or None)."""
+    if not enabled:
+        yield None
+        return
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+               TextColumn("{task.fields[info]}"))
+    with Progress(*columns, transient=False) as bars:
+        tasks: dict = {}
+        sims = bars.add_task("simulations", total=None, info="")
+
+        def callback(event: dict):
+            kind = event.get("event")
+            if kind == "stage":
+                key = event["stage"]
+                tasks[key] = bars.add_task(f"stage {key} ({' + '.join(event['setups'])})",
+                                           total=event["generations"], completed=event.get("generation", 0), info="")
+            elif kind == "generation" and event["stage"] in tasks:
+                bars.update(tasks[event["stage"]], completed=event["generation"],
+                            info=f"best loss {event['best_loss']:.5f}")
+            elif kind == "simulation":
+                bars.advance(sims)
+                if event.get("cached"):
+                    bars.update(sims, info="(from store)")
+            elif kind == "message":
+                bars.console.print(event["text"])
+
+        yield callback
+
+
+def write_estimate_report(out, est, experiments, *, frames, truth=None, extra: Mapping | None = None) -> dict:
+    """result.json, flow_curve.png and per-setup overlays for an :class:`similarity.estimate.Estimate`.
+
+    ``frames``: the simulated silhouettes of the estimate, one (8, H, W) array (or None) per experiment.
+    Returns the result dictionary that was written.
+    """
+    from mpm.loss import frame_losses
+    from similarity.space import e_rel
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = {"estimate": est.material.to_dict()}
+    if truth is not None:
+        result["truth"] = truth.to_dict()
+        result["e_rel"] = e_rel(truth, est.material)
+        result["e_rel_per_stage"] = [e_rel(truth, s.material) for s in est.stages]
+    result.update({k: v for k, v in est.to_dict().items() if k != "estimate"})
+    result.update(extra or {})
+    per_setup = []
+    for e, sim in zip(experiments, frames):
+        entry = {"name": e.name, "setup": f"{float(e.width_mm):g}x{float(e.height_mm):g}",
+                 "density": float(e.density), "depth_mm": float(e.depth_mm)}
+        if sim is not None:
+            losses = frame_losses(sim, e.frames)
+            entry["frame_losses"] = [float(v) for v in losses]
+            entry["loss"] = float(np.mean(losses))
+            entry["overlays"] = [str(p.relative_to(out)) for p in
+                                 overlay_pngs(out / "overlays", sim, e.frames, prefix=f"{entry['setup']}")]
+        per_setup.append(entry)
+    result["experiments"] = per_setup
+    curves = {"estimate": est.material}
+    curves.update({f"after stage {i}": s.material for i, s in enumerate(est.stages[:-1], start=1)})
+    flow_curve_png(out / "flow_curve.png", curves, dashed={"truth": truth} if truth is not None else None)
+    result["flow_curve"] = "flow_curve.png"
+    write_json(out / "result.json", result)
+    return result

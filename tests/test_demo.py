@@ -1,0 +1,70 @@
+"""`virheo demo` and `virheo estimate` end to end (shortened), and their input checks."""
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from studies.cli import main
+
+TESTS = Path(__file__).resolve().parent
+
+
+def _design_available():
+    try:
+        import similarity.design  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def test_demo_shortened_with_fake_forward_model(tmp_path):
+    out = tmp_path / "demo"
+    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}")
+    proc = subprocess.run([sys.executable, "-m", "studies.cli", "demo", "--out", str(out), "--generations", "3",
+                           "--workers", "0", "--quiet", "--simulator", "fake_forward:simulate"],
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads((out / "result.json").read_text())
+    for who in ("truth", "estimate"):
+        assert set(result[who]) == {"eta", "n", "sigma_y"}
+    assert result["truth"] == {"eta": 2.0, "n": 0.6, "sigma_y": 10.0}
+    assert 0 <= result["e_rel"] and result["wall_seconds"] > 0
+    assert result["setups"][0] == "40x50"
+    if _design_available():
+        assert len(result["setups"]) == 2
+    assert (out / "flow_curve.png").stat().st_size > 1000
+    assert len(list((out / "overlays").glob("*.png"))) == 8 * len(result["setups"])
+    assert "E_rel" in proc.stdout
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["demo", "--material", "1,0.5"], "three numbers"),
+    (["demo", "--material", "100,0.5,1"], "outside the material space"),
+    (["demo", "--setup", "10x50"], "outside the setup space"),
+    (["demo", "--generations", "0"], "must be >= 1"),
+])
+def test_demo_bad_input_is_one_line(argv, needle, tmp_path, capsys):
+    assert main(argv + ["--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and len(err.splitlines()) == 1
+
+
+def test_estimate_refuses_malformed_folder_before_any_work(tmp_path, capsys, shared_data):
+    good = shared_data / "real_world" / "ref_Lotion_2.5_5.1_1"
+    bad = tmp_path / "ref_Broken_2.0_2.0_1"
+    shutil.copytree(good, bad)
+    (bad / "config_05.png").unlink()
+    out = tmp_path / "out"
+    assert main(["estimate", str(good), str(bad), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "config_05" in err, err
+    assert not out.exists()  # nothing was started
+    assert main(["estimate", str(tmp_path / "missing"), "--out", str(out)]) == 2
+    assert "not found" in capsys.readouterr().err
+    assert main(["estimate", str(good), "--out", str(out), "--generations", "0"]) == 2
+    assert not out.exists()
