@@ -29,7 +29,7 @@ FPS = 24.0
 FRAME_TIMES_S = tuple(k / FPS for k in range(1, N_FRAMES + 1))  # frame k <-> config_k at t = k/24 s
 WALL_OVERLAP_CM = 0.15  # the reference cuboid reaches 0.15 cm into the back, floor and far walls
 _FRAME_NAME = re.compile(r"^config_(\d+)\.png$", re.I)
-_FOLDER_NAME = re.compile(r"_(\d+(?:\.\d+)?)_(\d+(?:\.\d+)?)_(\d+)$")  # ..._<H cm>_<W cm>_<k>
+_FOLDER_NAME = re.compile(r"^ref_.+_(\d+(?:\.\d+)?)_(\d+(?:\.\d+)?)_(\d+)$")  # ref_<material>_<H cm>_<W cm>_<k>
 
 
 @dataclass
@@ -255,7 +255,7 @@ def _png(mask: np.ndarray, path: Path) -> None:
     from PIL import Image
 
     gray = np.where(mask, 0, 255).astype(np.uint8)
-    Image.fromarray(np.repeat(gray[..., None], 3, axis=2), mode="RGB").save(path, optimize=True)
+    Image.fromarray(np.repeat(gray[..., None], 3, axis=2), mode="RGB").save(path)
 
 
 def settings_xml(width_mm: float, height_mm: float, depth_mm: float, density: float,
