@@ -45,7 +45,9 @@ The trial-trace variant is kept (``trial_trace=True``) only for that comparison.
 
 Scalar solve. The reference runs 14 Newton steps on x with backtracking to keep x/sqrt(2) >= sigma_y.
 Near the stiff limit (small eta, small n) Newton on x shrinks the excess stress only by a factor
-(1 - n) per step, so 14 steps do not converge there. We write the equation in the excess
+(1 - n) per step, so 14 steps do not converge there (for a trial state one elastic step past the
+steady state, dt = 7.5e-5 s, the excess stress is off by up to 77 % at eta ~ 6e-4 Pa s^n, n ~ 0.34;
+a few mPa, so harmless in absolute terms, but avoidable). We write the equation in the excess
 e = alpha*x - beta*sigma_y > 0:  e + alpha*c*k*(e/eta)^(1/n) = e_trial, and run Newton on
 s = log(e) for G(s) = log(e^s + alpha*c*k*(e^s/eta)^(1/n)) - log(e_trial). G is a log-sum-exp of two
 affine functions of s, hence convex and increasing, with slope between 1 and 1/n: Newton started at
@@ -58,6 +60,15 @@ Plasticity is isochoric: the corrected b_e is rescaled to det(b_e_trial) (paper 
 Taichi. ``kirchhoff_stress``, ``return_mapping`` and ``is_plastic`` are ``@ti.func`` for the MPM
 solver (3x3, any float dtype). ``return_mapping_taichi`` runs the same func over a numpy batch.
 Importing this module does not initialise Taichi; ``ensure_taichi`` does so only if nobody has.
+Python float literals inside the funcs take Taichi's ``default_fp``: keep data and default_fp the
+same precision (f64 data under default_fp=f32 agrees with numpy to ~1e-8 instead of ~1e-15; f32 data
+under default_fp=f64 is computed in f64 and Taichi warns on the store).
+
+Public names. numpy: ``kirchhoff_stress_np``, ``cauchy_stress``, ``dev``, ``shear_stress`` (eq. 14),
+``yield_function`` (eq. 15), ``hb_flow_rate`` (eq. 17), ``solve_excess`` (eq. 57), ``return_mapping_np``,
+``is_plastic_np``, ``terminal_shear_stress``, 1D model ``integrate_1d``, ``transition_time`` (eq. 8),
+``terminal_stress`` (eq. 7), ``simple_shear`` -> ``ShearHistory``. Taichi: ``kirchhoff_stress``,
+``return_mapping``, ``is_plastic``, ``return_mapping_taichi``, ``ensure_taichi``.
 """
 
 from dataclasses import dataclass

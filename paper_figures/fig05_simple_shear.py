@@ -1,0 +1,47 @@
+"""Paper Fig. 5: eq.-14 shear stress vs time in 3D simple shear (gamma_dot = 10 1/s), the paper's flow
+rule (purple) against Yue et al. 2015 (red); dashed: eq. 7, dotted red: the Yue closed form
+(mpm.constitutive.terminal_shear_stress). Same materials as Fig. 2.
+Usage: python -m paper_figures.fig05_simple_shear [OUT.png]
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from mpm.constitutive import simple_shear, terminal_shear_stress, terminal_stress
+from paper_figures.fig02_1d_model import PANELS, STRAIN_RATE, T_END
+
+
+def main(out: str = "docs/figures/fig05_simple_shear.png") -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eta, n, sy = (np.array(v) for v in zip(*PANELS))
+    paper = simple_shear(eta, n, sy, STRAIN_RATE, t_end=T_END, dt=2e-5)
+    yue = simple_shear(eta, n, sy, STRAIN_RATE, t_end=T_END, dt=2e-5, flow_rule="yue2015")
+    fig, axes = plt.subplots(2, 3, figsize=(11, 6), sharex=True)
+    for i, ax in enumerate(axes.flat):
+        ax.plot(paper.t, paper.shear_stress[:, i], color="purple", label="paper flow rule")
+        ax.plot(yue.t, yue.shear_stress[:, i], color="red", label="Yue et al. 2015")
+        ax.axhline(terminal_stress(eta[i], n[i], sy[i], STRAIN_RATE), ls="--", color="k", lw=0.8, label="eq. 7")
+        ax.axhline(terminal_shear_stress(eta[i], n[i], sy[i], STRAIN_RATE, "yue2015"), ls=":", color="red", lw=0.8)
+        ax.set_title(f"eta={eta[i]:g}, n={n[i]:g}, sigma_y={sy[i]:g}", fontsize=9)
+        ax.set_ylim(bottom=0)
+    for ax in axes[-1]:
+        ax.set_xlabel("t (s)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("shear stress (Pa), eq. 14")
+    axes.flat[0].legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+if __name__ == "__main__":
+    print(main(*sys.argv[1:2]))
