@@ -331,6 +331,12 @@ _COEFFICIENTS = {y: (r.alpha, r.beta, r.c) for y, r in ((False, _RULES["paper"])
 
 
 @ti.func
+def _ti_cbrt(x):
+    """x^(1/3) for x > 0, in the dtype of x (a literal 1/3 would be rounded to default_fp)."""
+    return ti.exp(ti.log(x) / 3)
+
+
+@ti.func
 def _ti_dev(a):
     return a - (a.trace() / 3.0) * ti.Matrix(_IDENTITY)
 
@@ -339,7 +345,7 @@ def _ti_dev(a):
 def kirchhoff_stress(be, kappa, mu):
     """Kirchhoff tau = (kappa/2)(J^2 - 1) I + mu dev(bbar) (eqs. 10, 12); MPM force is -V_p tau grad w."""
     det = be.determinant()
-    bbar = be * det ** (-1.0 / 3.0)
+    bbar = be * _ti_cbrt(1 / det)
     return (0.5 * kappa * (det - 1.0)) * ti.Matrix(_IDENTITY) + mu * _ti_dev(bbar)
 
 
@@ -365,7 +371,7 @@ def _ti_excess(be_trial, mu, sigma_y, yue: ti.template()):
     """alpha*||s_trial|| - beta*sigma_y: the yield function of the trial state (eq. 15)."""
     alpha, beta, c = ti.static(_COEFFICIENTS[bool(yue)])
     det = be_trial.determinant()
-    x_trial = mu / ti.sqrt(det) * _ti_dev(be_trial * det ** (-1.0 / 3.0)).norm()  # eq. 13
+    x_trial = mu / ti.sqrt(det) * _ti_dev(be_trial * _ti_cbrt(1 / det)).norm()  # eq. 13
     return alpha * x_trial - beta * sigma_y
 
 
@@ -388,18 +394,18 @@ def return_mapping(be_trial, be_old, mu, eta, n, sigma_y, dt, yue: ti.template()
     alpha, beta, c = ti.static(_COEFFICIENTS[bool(yue)])
     det = be_trial.determinant()
     J = ti.sqrt(det)
-    bbar = be_trial * det ** (-1.0 / 3.0)
+    bbar = be_trial * _ti_cbrt(1 / det)
     d = _ti_dev(bbar)
     x_trial = mu / J * d.norm()  # eq. 13
     e_trial = alpha * x_trial - beta * sigma_y  # eq. 15
     result = be_trial
     if e_trial > 0:
-        T = be_old.trace() * be_old.determinant() ** (-1.0 / 3.0)  # tr(bbar_old)
+        T = be_old.trace() * _ti_cbrt(1 / be_old.determinant())  # tr(bbar_old)
         k = dt * mu / J * T / 3.0  # eq. 57
         e = _ti_solve_excess(e_trial, alpha * c * k, eta, n)
         x = (e + beta * sigma_y) / alpha
         bbar_new = (T / 3.0) * ti.Matrix(_IDENTITY) + (x / x_trial) * d  # eq. 56
-        result = bbar_new * (det / bbar_new.determinant()) ** (1.0 / 3.0)  # isochoric
+        result = bbar_new * _ti_cbrt(det / bbar_new.determinant())  # isochoric
     return result
 
 
