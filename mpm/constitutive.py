@@ -386,7 +386,7 @@ def is_plastic(be_trial, mu, sigma_y, yue: ti.template()):
 
 @ti.func
 def return_mapping(be_trial, be_old, mu, eta, n, sigma_y, dt, yue: ti.template()):
-    """New b_e after the plastic correction of the trial b_e (appendix B, eq. 57, trial trace).
+    """New b_e after the plastic correction of the trial b_e (appendix B, eq. 57, old trace).
 
     be_old: b_e before the elastic prediction; its isochoric trace enters eq. 57 (see module doc).
     yue: Python bool (template), True selects flow_rule="yue2015". Isochoric: det is kept.
