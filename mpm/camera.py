@@ -110,8 +110,10 @@ class Camera:
 
     def to_camera(self, points_m) -> np.ndarray:
         """World points (N, 3) in metres -> camera coordinates X_c = R^T (X - e); the view axis is -Z_c."""
-        p = np.asarray(points_m, dtype=np.float64).reshape(-1, 3)
-        return (p - np.asarray(self.eyepos_m)) @ self.rotation
+        d = np.asarray(points_m, dtype=np.float64).reshape(-1, 3) - np.asarray(self.eyepos_m)
+        r = self.rotation
+        # written out rather than d @ r: a BLAS call on a busy machine can stall far longer than this takes
+        return np.stack([d[:, 0] * r[0, j] + d[:, 1] * r[1, j] + d[:, 2] * r[2, j] for j in range(3)], axis=1)
 
     def depth(self, points_m) -> np.ndarray:
         """Distance of each point in front of the eye along the view axis (metres)."""
@@ -122,14 +124,18 @@ class Camera:
 
         Points not in front of the camera come back as NaN.
         """
+        return self.project_with_depth(points_m, image_size)[0]
+
+    def project_with_depth(self, points_m, image_size=(960, 540)) -> tuple[np.ndarray, np.ndarray]:
+        """(:meth:`project`, :meth:`depth`) in one pass."""
         width, height = _size(image_size)
         pc = self.to_camera(points_m)
         d = -pc[:, 2]
         f = self.focal_px(height)
         with np.errstate(divide="ignore", invalid="ignore"):
             uv = np.stack([0.5 * width + f * pc[:, 0] / d, 0.5 * height - f * pc[:, 1] / d], axis=1)
-        uv[d < NEAR_M] = np.nan
-        return uv
+        uv[~(d >= NEAR_M)] = np.nan
+        return uv, d
 
 
 def _size(image_size) -> tuple[int, int]:

@@ -90,8 +90,7 @@ def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float
     if not radius > 0:
         raise ValueError(f"splat radius must be positive, got {radius_m!r}")
 
-    depth = camera.depth(p)
-    uv = camera.project(p, (width, height))
+    uv, depth = camera.project_with_depth(p, (width, height))
     ok = np.isfinite(uv).all(axis=1)
     uv, depth = uv[ok], depth[ok]
     focal = camera.focal_px(height)
