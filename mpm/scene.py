@@ -1,0 +1,209 @@
+"""The dam-break scene of the paper (section 3.3) as the reference implementation sets it up.
+
+Pure numpy, no Taichi: geometry, particle lattice, walls, moduli, frame times and the region the flow
+can reach. SI units inside (metres, kg/m^3, Pa); setups arrive in millimetres (``width_mm``).
+
+Reference frame (REFERENCE_SPEC 2.2): origin at the bottom, back-wall, far-side-wall corner of the
+specimen; x along the width W (the flow direction, out through the open front at x = W), y up, z towards
+the camera, the near side wall at z = depth. The material fills [0, W] x [0, H] x [0, depth] and, like the
+reference, its particle block reaches ``OVERLAP_M`` into the floor, the back wall and both side walls:
+those particles sit inside the (sticking) walls, stay frozen and act as a coating. The back-wall and
+far-side-wall coating is visible in the silhouettes, the floor and near-side-wall layers are not
+(REFERENCE_SPEC 2.7). There is no gate: the front is open at t = 0 and the side walls end at x = W.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+KAPPA_PA = 1.0e4  # bulk modulus kappa (section 4.2, REFERENCE_SPEC 1.2)
+MU_PA = 1.0e3  # shear modulus mu
+GRAVITY = 9.81  # m/s^2, along -y
+FPS = 24.0  # frame k is at t = k / FPS (REFERENCE_SPEC 2.8)
+N_FRAMES = 8
+OVERLAP_M = 1.5e-3  # particle block reaches this far into floor, back wall and side walls (spec 2.2)
+SIDE_WALL_M = 3.0e-3  # thickness of the side walls (spec 2.2: 0.3 cm)
+BACK_WALL_M = 1.0e-2  # thickness of the back wall and the floor (spec 2.2: 1 cm)
+WALL_TOP_M = 0.2  # walls are 20 cm tall
+SETUP_RANGE_MM = (20.0, 70.0)  # paper section 3.3
+PARTICLES_PER_CELL = 2  # per axis (spec 2.3: cell_samples_per_dim)
+MAX_PARTICLES = 6_000_000  # refuse cell widths that would need more particles than this
+
+
+def check_material(material) -> tuple[float, float, float]:
+    """(eta Pa s^n, n, sigma_y Pa) of any object with .eta .n .sigma_y; ValueError when unphysical."""
+    try:
+        eta, n, sigma_y = float(material.eta), float(material.n), float(material.sigma_y)
+    except (AttributeError, TypeError, ValueError):
+        raise ValueError("material needs numeric .eta (Pa s^n), .n and .sigma_y (Pa)") from None
+    if not (math.isfinite(eta) and eta > 0):
+        raise ValueError(f"eta must be a positive number of Pa s^n, got {eta!r}")
+    if not (math.isfinite(n) and n > 0):
+        raise ValueError(f"n must be positive, got {n!r}")
+    if not (math.isfinite(sigma_y) and sigma_y >= 0):
+        raise ValueError(f"sigma_y must be >= 0 Pa, got {sigma_y!r}")
+    return eta, n, sigma_y
+
+
+def check_setup(setup) -> tuple[float, float]:
+    """(W, H) in metres of any object with .width_mm .height_mm; ValueError outside 20-70 mm."""
+    try:
+        w, h = float(setup.width_mm), float(setup.height_mm)
+    except (AttributeError, TypeError, ValueError):
+        raise ValueError("setup needs numeric .width_mm and .height_mm") from None
+    lo, hi = SETUP_RANGE_MM
+    for name, v in (("width", w), ("height", h)):
+        if not (math.isfinite(v) and lo - 1e-9 <= v <= hi + 1e-9):
+            raise ValueError(f"setup {name} must be within {lo:g}-{hi:g} mm, got {v!r}")
+    return w * 1e-3, h * 1e-3
+
+
+def elastic_wave_speed(density: float, kappa: float = KAPPA_PA, mu: float = MU_PA) -> float:
+    """P-wave speed sqrt((kappa + 4/3 mu) / rho) in m/s, the speed limit of the explicit time step."""
+    return math.sqrt((kappa + 4.0 / 3.0 * mu) / density)
+
+
+def frame_times() -> np.ndarray:
+    """t_k = k / 24 s for k = 1..8 (REFERENCE_SPEC 2.8)."""
+    return np.arange(1, N_FRAMES + 1) / FPS
+
+
+@dataclass(frozen=True)
+class DamBreak:
+    """Geometry and material constants of one dam-break; lengths in metres, density in kg/m^3."""
+
+    width_m: float
+    height_m: float
+    depth_m: float
+    density: float
+    cell_m: float
+    dim: int = 3
+    kappa: float = KAPPA_PA
+    mu: float = MU_PA
+    gravity: float = GRAVITY
+
+    @classmethod
+    def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = 40.0, dim: int = 3) -> "DamBreak":
+        w, h = check_setup(setup)
+        density = float(density)
+        if not (math.isfinite(density) and density > 0):
+            raise ValueError(f"density must be positive (kg/m^3), got {density!r}")
+        depth_mm = float(depth_mm)
+        if not (math.isfinite(depth_mm) and 5.0 <= depth_mm <= 200.0):
+            raise ValueError(f"depth must be within 5-200 mm, got {depth_mm!r}")
+        cell_mm = float(cell_mm)
+        if not (math.isfinite(cell_mm) and 0.2 <= cell_mm <= 10.0):
+            raise ValueError(f"cell width must be within 0.2-10 mm, got {cell_mm!r}")
+        if dim not in (2, 3):
+            raise ValueError(f"dim must be 2 or 3, got {dim!r}")
+        scene = cls(w, h, depth_mm * 1e-3, density, cell_mm * 1e-3, dim)
+        if scene.n_particles > MAX_PARTICLES:
+            raise ValueError(f"cell width {cell_mm:g} mm needs {scene.n_particles} particles (max {MAX_PARTICLES})")
+        return scene
+
+    # --- particles (REFERENCE_SPEC 2.3) ---
+    @property
+    def spacing_m(self) -> float:
+        """Particle lattice spacing: cell / 2 (2 particles per cell per axis)."""
+        return self.cell_m / PARTICLES_PER_CELL
+
+    @property
+    def half_length_m(self) -> float:
+        """uGIMP particle half-length l_p = spacing / 2 (constant, REFERENCE_SPEC 2.3-2.4)."""
+        return 0.5 * self.spacing_m
+
+    @property
+    def particle_volume(self) -> float:
+        """Initial particle volume (m^3 in 3D, m^2 per unit depth in 2D plane strain)."""
+        return self.spacing_m ** self.dim
+
+    @property
+    def particle_mass(self) -> float:
+        return self.density * self.particle_volume
+
+    def block(self) -> tuple[np.ndarray, np.ndarray]:
+        """Corners of the particle block: the specimen plus the overlap into floor, back and side walls."""
+        lo = np.array([-OVERLAP_M, -OVERLAP_M, -OVERLAP_M])
+        hi = np.array([self.width_m, self.height_m, self.depth_m + OVERLAP_M])
+        return lo[: self.dim], hi[: self.dim]
+
+    def lattice_shape(self) -> tuple[int, ...]:
+        lo, hi = self.block()
+        return tuple(int(math.ceil((b - a) / self.spacing_m - 1e-9)) for a, b in zip(lo, hi))
+
+    @property
+    def n_particles(self) -> int:
+        return int(np.prod(self.lattice_shape()))
+
+    def particles(self) -> np.ndarray:
+        """(N, dim) cell-centred lattice positions, x index fastest, no jitter (REFERENCE_SPEC 2.3)."""
+        lo, _ = self.block()
+        axes = [lo[a] + self.spacing_m * (np.arange(m) + 0.5) for a, m in enumerate(self.lattice_shape())]
+        grids = np.meshgrid(*axes[::-1], indexing="ij")  # last axis of the mesh = x: x varies fastest
+        return np.stack([g.ravel() for g in grids[::-1]], axis=1)
+
+    # --- walls (REFERENCE_SPEC 2.2) ---
+    def boxes(self) -> np.ndarray:
+        """(4, 2, 3) static boxes [min, max] in the reference's order: floor, back, far side, near side.
+
+        All are sticking. Side walls are at least one cell thick so that a grid node always lies inside.
+        """
+        w, d = self.width_m, self.depth_m
+        side = max(SIDE_WALL_M, 1.01 * self.cell_m)
+        back = max(BACK_WALL_M, 1.01 * self.cell_m)
+        big = 10.0
+        return np.array([
+            [[-big, -back, -big], [big, 0.0, big]],  # B0 floor
+            [[-back, 0.0, 0.0], [0.0, WALL_TOP_M, d]],  # B1 back wall
+            [[-back, 0.0, -side], [w, WALL_TOP_M, 0.0]],  # B2 far side wall (z = 0)
+            [[-back, 0.0, d], [w, WALL_TOP_M, d + side]],  # B3 near side wall (camera side, z = depth)
+        ])
+
+    @property
+    def plane_z_m(self) -> float:
+        """z of the 2D plane-strain section: mid-depth, where only floor and back wall are met."""
+        return 0.5 * self.depth_m
+
+    def frozen_and_hidden(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(frozen, hidden) masks of particles: inside any wall; hidden by the reference's skinning rule.
+
+        The reference tests the boxes in order and lets the *last* box whose x and y ranges contain the
+        particle decide: hidden when z is inside that box too (REFERENCE_SPEC 2.7). The solver applies the
+        same rule every step; this numpy version gives the initial state.
+        """
+        p = np.asarray(positions, float)
+        z = p[:, 2] if p.shape[1] == 3 else np.full(len(p), self.plane_z_m)
+        frozen = np.zeros(len(p), bool)
+        hidden = np.zeros(len(p), bool)
+        for lo, hi in self.boxes():
+            in_xy = (p[:, 0] >= lo[0]) & (p[:, 0] <= hi[0]) & (p[:, 1] >= lo[1]) & (p[:, 1] <= hi[1])
+            in_z = (z >= lo[2]) & (z <= hi[2])
+            frozen |= in_xy & in_z
+            hidden = np.where(in_xy, in_z, hidden)
+        return frozen, hidden
+
+    # --- time stepping and reach ---
+    @property
+    def wave_speed(self) -> float:
+        return elastic_wave_speed(self.density, self.kappa, self.mu)
+
+    @property
+    def speed_limit(self) -> float:
+        """A speed no particle of a sane run reaches in 1/3 s: a few times free fall from height H."""
+        return 5.0 * math.sqrt(2.0 * self.gravity * self.height_m) + 1.0
+
+    def reach(self) -> tuple[np.ndarray, np.ndarray]:
+        """Box (metres) the material cannot leave within 1/3 s unless the simulation blew up.
+
+        A dam-break front moves at most at the inviscid (Ritter) speed 2 sqrt(g H); with a factor 1.5 of
+        safety the front travels R = 3 sqrt(g H) T in T = 1/3 s, forward and sideways. Upward, no particle
+        rises far above the initial height. The solver's grid follows the particles' bounding box inside
+        this region, so its size costs nothing; leaving it raises SimulationError.
+        """
+        t_end = N_FRAMES / FPS
+        r = 3.0 * math.sqrt(self.gravity * self.height_m) * t_end + 10 * self.cell_m
+        lo = np.array([-BACK_WALL_M - 2 * self.cell_m, -BACK_WALL_M - 2 * self.cell_m, -r])
+        hi = np.array([self.width_m + r, 2.0 * self.height_m + 10 * self.cell_m, self.depth_m + r])
+        return lo[: self.dim], hi[: self.dim]
