@@ -151,9 +151,9 @@ def test_real_solver_end_to_end_small(tmp_path, monkeypatch):
     again = batch.run_one(E._request(truth, exp, tiny, batch.DEFAULT_SIMULATOR))
     assert np.array_equal(again.silhouettes, exp.frames)
     est = E.estimate([exp], preset=tiny, seed=0, workers=0, store=store, propose=None)
+    assert store.count() == 1 + est.simulations
     start = E._Objective([exp], tiny, batch.DEFAULT_SIMULATOR, store, batch.InlineExecutor(), None)
     assert est.loss <= start([E.normalize(E.center().as_array())])[0]
     n = store.count()
-    assert n == 1 + est.simulations
     rerun = E.estimate([exp], preset=tiny, seed=0, workers=0, store=store, propose=None)
     assert store.count() == n and rerun.material == est.material
