@@ -113,3 +113,13 @@ def test_render_frames_speed():
     elapsed = time.perf_counter() - t
     assert masks.shape == (8, 540, 960) and masks.dtype == bool
     assert elapsed < 3.0, f"{len(base)} particles x 8 frames took {elapsed:.2f} s"
+
+
+def test_particles_beyond_the_image_edge():
+    # a camera close to a slab so that the slab overflows the image on every side
+    cam = Camera(eyepos_m=(0.015, 0.01, 0.03), quat=(1.0, 0.0, 0.0, 0.0))
+    pts = cuboid(0.06, 0.04, 0.004, 1.0e-3, jitter=0.1) - np.array([0.015, 0.01, 0.0])
+    pts = pts[np.random.default_rng(5).random(len(pts)) < 0.3]  # sparse: exercise the edge particles too
+    got = render(pts, cam, (320, 180), radius_m=0.8e-3, closing_px=0)
+    assert got[0].any() and got[-1].any() and got[:, 0].any() and got[:, -1].any()
+    assert np.array_equal(got, brute_force(pts, cam, 0.8e-3, (320, 180)))
