@@ -28,6 +28,8 @@ def brute_force(points, camera, radius, size=(960, 540)):
     for (u, v), rp in zip(uv, r):
         c0, c1 = max(int(u - rp) - 1, 0), min(int(u + rp) + 2, w)
         r0, r1 = max(int(v - rp) - 1, 0), min(int(v + rp) + 2, h)
+        if c0 >= c1 or r0 >= r1:
+            continue
         cols, rows = np.meshgrid(np.arange(c0, c1) + 0.5, np.arange(r0, r1) + 0.5)
         mask[r0:r1, c0:c1] |= (cols - u) ** 2 + (rows - v) ** 2 <= rp ** 2
     return mask
