@@ -1,0 +1,92 @@
+"""``virheo design``: which dam-break setup to run next, from the current estimate (section 6)."""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+EXAMPLE = "virheo design --material 3.14,0.74,1.24 --done 29x59"
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "design",
+        help="propose the next dam-break setup from the current estimate (no simulation)",
+        description="Propose the next dam-break setup: among the 2601 candidates (width and height 20..70 mm in "
+        "1 mm steps) the one whose loss normal is most perpendicular to the normals of the setups already done "
+        "(score S_p, lower is better; Algorithm 2 with the plane-Poiseuille Hessian and the Theta map). "
+        f"Units: material in SI (eta in Pa s^n, n dimensionless, sigma_y in Pa); setups WxH in millimetres "
+        f"(width along the flow, then height). Example: {EXAMPLE}",
+    )
+    # let values such as "-1,0.5,3" reach our own validation instead of being taken for an option
+    p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eExX+-]*$")
+    p.add_argument("--material", required=True, metavar="ETA,N,SIGMA_Y",
+                   help="current estimate in SI: eta [Pa s^n], n [-], sigma_y [Pa], e.g. 3.14,0.74,1.24 "
+                   "(must lie in the material space: eta 1e-4..30, n 0.3..1, sigma_y 0..40)")
+    p.add_argument("--done", required=True, action="append", metavar="WxH",
+                   help="a setup already run, width x height in mm (20..70), e.g. 29x59; repeat for several")
+    p.add_argument("--theta", default="reference", metavar="reference|PATH",
+                   help="Theta map: 'reference' (the authors' published map, default) or a JSON file saved by ThetaMap.save")
+    p.add_argument("--plot", default=None, metavar="FILE.png",
+                   help="write a heat map of S_p over the (W, H) grid with the done and chosen setups marked")
+    p.add_argument("--json", action="store_true", help="print the result as JSON instead of text")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from similarity.design import rank_setups
+    from similarity.space import Material, Setup
+    from surrogate.theta import load
+
+    material = Material.parse(args.material).check_in_space()
+    done = [Setup.parse(text).check_in_space() for text in args.done]
+    if args.plot is not None:
+        parent = Path(args.plot).expanduser().resolve().parent
+        if not parent.is_dir():
+            raise FileNotFoundError(f"--plot: folder {parent} does not exist")
+    theta = load(args.theta)
+    ranking = rank_setups(material, done, theta=theta)
+    best, score = ranking.best()
+    if args.plot is not None:
+        plot(ranking, best, args.plot)
+    if args.json:
+        print(json.dumps({
+            "material": material.to_dict(),
+            "done": [s.to_dict() for s in done],
+            "theta": theta.name,
+            "next": best.to_dict(),
+            "score": score,
+            "valid_candidates": len(ranking),
+            "plot": str(args.plot) if args.plot else None,
+        }, indent=1))
+    else:
+        print(f"next setup: {best} mm (width x height), S_p = {score:.6f}")
+        print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
+              f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; Theta map: {theta.name}")
+        if args.plot:
+            print(f"  heat map written to {args.plot}")
+    return 0
+
+
+def plot(ranking, best, path) -> None:
+    """Heat map of S_p over the candidate grid (NaN = invalid), done setups as crosses, the choice as a star."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    grid = ranking.grid()
+    fig, ax = plt.subplots(figsize=(5.6, 5.0), dpi=120)
+    im = ax.imshow(grid, origin="lower", extent=(19.5, 70.5, 19.5, 70.5), cmap="viridis", interpolation="nearest")
+    fig.colorbar(im, ax=ax, label="perpendicularity score $S_p$ (lower is better)")
+    for s in ranking.done:
+        ax.plot(s.width_mm, s.height_mm, "X", color="w", mec="k", ms=11, ls="none", clip_on=False,
+                label="done" if s is ranking.done[0] else None)
+    ax.plot(best.width_mm, best.height_mm, "r*", ms=15, mec="k", clip_on=False, label=f"next {best}")
+    m = ranking.material
+    ax.set(xlabel="width W [mm]", ylabel="height H [mm]",
+           title=f"eta={m.eta:.3g} Pa s^n, n={m.n:.3g}, sigma_y={m.sigma_y:.3g} Pa")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

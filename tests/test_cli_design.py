@@ -1,0 +1,69 @@
+"""``virheo design``: the proposal, JSON and plot outputs, and one-line errors with exit 2."""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from studies.cli import main
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def test_design_text(capsys):
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("next setup: 32x20 mm")
+    assert "S_p = 0.98" in out
+
+
+def test_design_json_and_plot(tmp_path, capsys):
+    png = tmp_path / "sp.png"
+    assert main(["design", "--material", "3,0.5,3", "--done", "20x20", "--done", "70x70", "--json", "--plot", str(png)]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["next"] == {"width_mm": 41.0, "height_mm": 20.0}
+    assert 0 < data["score"] <= 2**0.5 and data["valid_candidates"] == 2601
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_design_with_saved_theta_file(tmp_path, capsys):
+    from surrogate.theta import load
+
+    path = load("reference").save(tmp_path / "theta.json")
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path)]) == 0
+    assert capsys.readouterr().out.startswith("next setup: 32x20 mm")
+
+
+@pytest.mark.parametrize(
+    "argv,needle",
+    [
+        (["--material", "-1,0.5,3", "--done", "29x59"], "eta=-1"),
+        (["--material=-1,0.5,3", "--done", "29x59"], "eta=-1"),
+        (["--material", "3,0.5,3", "--done", "10x500"], "width_mm=10"),
+        (["--material", "3,0.5,3", "--done", "abc"], "setup 'abc'"),
+        (["--material", "3,0.5", "--done", "29x59"], "three numbers"),
+        (["--material", "100,0.5,3", "--done", "29x59"], "outside the material space"),
+        (["--material", "3,0.5,3", "--done", "29x59", "--theta", "/nonexistent/t.json"], "not found"),
+        (["--material", "3,0.5,3", "--done", "29x59", "--plot", "/nonexistent/dir/x.png"], "does not exist"),
+    ],
+)
+def test_bad_input_one_line_exit_2(argv, needle, capsys):
+    assert main(["design", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and needle in err and "Traceback" not in err
+
+
+def test_bad_input_through_the_console_script():
+    for args in (["--material", "-1,0.5,3", "--done", "29x59"], ["--material", "1,0.5,3", "--done", "10x500"], ["--material", "1,0.5,3", "--done", "abc"]):
+        proc = subprocess.run([sys.executable, "-m", "studies.cli", "design", *args], capture_output=True, text=True, cwd=REPO, timeout=120)
+        assert proc.returncode == 2, proc.stderr
+        assert proc.stdout == "" and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
+
+
+def test_help_explains_units(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["design", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    assert "Pa s^n" in out and "mm" in out and "sigma_y" in out
