@@ -39,7 +39,7 @@ def test_reference_variant_agrees_on_records(shared_data, variant, units):
         q_ref, valid = loss_normals(m, w, h, theta, variant, units)
         q_our, _ = loss_normals(m, w, h, theta, "scaled")
         cos = np.abs(np.sum(q_ref[valid] * q_our[valid], axis=1))
-        assert cos.min() > 0.9999, (name, cos.min())  # < 0.81 degrees; measured max 0.49  # nearly rank-one Hessians: the two normals nearly coincide
+        assert cos.min() > 0.9999, (name, cos.min())  # < 0.81 degrees (measured max 0.49)
         q1_ref = loss_normal(m, s1, theta, variant, units)
         s_ref = perpendicularity(q1_ref, q_ref[valid])
         i = int(np.argmin(s_ref))
