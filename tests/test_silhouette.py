@@ -73,7 +73,7 @@ def test_sparse_particles_leave_no_holes(spacing):
     mask = render(pts + off, CAM, spacing_m=spacing)
     assert np.array_equal(mask, ndimage.binary_fill_holes(mask))
     grown = box_mask(CAM, 0.03 + 2 * off, 0.03 + 2 * off, 0.04 + 2 * off)
-    assert np.count_nonzero(mask & ~grown) <= 10  # never beyond the surface
+    assert np.count_nonzero(mask & ~grown) <= 0.002 * grown.sum()  # not beyond the surface (jitter aside)
     # spheres of radius r round the box's edges: the deficit is confined to a band of width ~r
     assert iou(mask, grown) > (0.95 if spacing < 2e-3 else 0.75)
 
@@ -81,7 +81,8 @@ def test_sparse_particles_leave_no_holes(spacing):
 def test_default_radius():
     assert default_radius_m() == REFERENCE_RADIUS_M
     assert default_radius_m(REFERENCE_SPACING_M) == pytest.approx(REFERENCE_RADIUS_M)
-    assert default_radius_m(2.52e-3) > 0.75 * 2.52e-3
+    assert default_radius_m(2.52e-3) >= 0.75 * 2.52e-3
+    assert default_radius_m(1.0e-3) == REFERENCE_RADIUS_M
     with pytest.raises(ValueError):
         default_radius_m(0.0)
 
