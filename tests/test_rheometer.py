@@ -123,3 +123,15 @@ def test_cli_not_an_export(tmp_path, capsys):
     bad.write_text("hello\n")
     assert main(["rheometer", str(bad)]) == 2
     assert "not a rheometer export" in capsys.readouterr().err
+
+
+def test_cli_json(shared_data, capsys):
+    import json
+
+    f = shared_data / "rheometer" / "Lotion_20230114_1204_23C.csv"
+    assert main(["rheometer", str(f), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["material_name"] == "lotion" and len(data["shear_rate_per_s"]) == 21
+    fit = data["fit"]
+    assert fit["n_points"] == 11 and fit["rms_log10_stress"] < 0.01
+    assert Material(fit["eta"], fit["n"], fit["sigma_y"]).stress(10.0) == pytest.approx(data["shear_stress_pa"][10], rel=0.02)
