@@ -236,8 +236,16 @@ def load(path, *, frames: bool = True) -> Experiment:
     if frames:
         masks = np.stack([load_reference(p) for p in frame_paths(folder)])
         for k, mask in enumerate(masks, start=1):
-            if not mask.any():
+            fraction = float(mask.mean())
+            if fraction == 0.0:
                 notes.append(f"config_{k:02d}.png shows no material")
+            elif fraction > 0.5:
+                notes.append(f"config_{k:02d}.png is {100 * fraction:.0f}% material: inverted colours? "
+                             f"(material must be black on white)")
+    win_w, win_h = camera.window_size
+    if abs(win_w * WORKING_SIZE[1] - win_h * WORKING_SIZE[0]) > 0.01 * win_w * WORKING_SIZE[1]:
+        notes.append(f"camera window_size {win_w}x{win_h} does not have the frames' aspect ratio "
+                     f"{WORKING_SIZE[0]}:{WORKING_SIZE[1]}")
     return Experiment(name=name, path=folder, width_mm=round(10.0 * width_cm, 6), height_mm=round(10.0 * height_cm, 6),
                       depth_mm=round(10.0 * depth_cm, 6), density=1000.0 * rho, camera=camera, frames=masks,
                       initial_material=initial, setup_index=int(m.group(3)) if m else None, warnings=notes)

@@ -122,3 +122,11 @@ def test_write_rejects_bad_masks(tmp_path):
     with pytest.raises(ValueError):
         experiment.write(tmp_path / "x", np.zeros((8, 500, 1000), bool), width_mm=30, height_mm=20,
                          camera=Camera.default())
+
+
+def test_inverted_frames_are_suspicious(folder):
+    for k in (1, 2):
+        p = folder / f"config_{k:02d}.png"
+        Image.fromarray(255 - np.asarray(Image.open(p))).save(p)
+    exp = experiment.load(folder)
+    assert sum("inverted" in w for w in exp.warnings) == 2
