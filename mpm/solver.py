@@ -48,7 +48,7 @@ from taichi.lang import impl
 from mpm import scene as sc
 
 DEFAULT_CELL_MM = 3.0  # chosen by measurement: see docs/performance.md, "Forward model"
-CFL = 0.4  # dt = CFL * dx / (c + |v|max); stable up to ~0.6 in our tests (docs/performance.md)
+CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6 is still stable, 0.8 blows up (docs/performance.md)
 SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame interval
 FLOW_RULES = ("paper", "yue2015")
 PRECISIONS = ("f32", "f64")
@@ -163,7 +163,7 @@ def _engine(dim: int, precision: str) -> _Engine:
 
 def _build_kernels(dim: int, tasks: int, atomic: bool):
     """The step kernel for ``dim`` with ``tasks`` grid copies (CPU) or atomics (GPU)."""
-    from mpm.constitutive import is_plastic, kirchhoff_stress, return_mapping
+    from mpm.constitutive import kirchhoff_stress, return_mapping
 
     D = dim
     nd = ti.types.ndarray()
@@ -172,35 +172,56 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
     def ugimp(X):
         """uGIMP weights per axis (REFERENCE_SPEC 2.4, l_p = dx/4) for stencil nodes base + 0..2.
 
-        X: position in cell units relative to the window origin. Returns base, the normalised 1D
-        factors N = S / (2 l) (they sum to 1) and their derivatives in cell units.
+        X: position in cell units relative to the window origin. Returns base, fx = X - base in
+        [0.25, 1.25), the normalised 1D factors N = S / (2 l_p) (they sum to 1) and dN/dx_p in cell units.
+        With r = fx - o = (x_p - x_i)/dx: N = 7/8 - 2 r^2 for |r| < 1/4, 1 - |r| for |r| < 3/4,
+        (5/4 - |r|)^2 for |r| < 5/4, else 0; node 0 sees r in [1/4, 5/4), node 1 [-3/4, 1/4),
+        node 2 [-7/4, -3/4).
         """
         base = ti.floor(X - 0.25, ti.i32)
         fx = X - base
         w = ti.Matrix.zero(float, D, 3)
         dw = ti.Matrix.zero(float, D, 3)
         for a in ti.static(range(D)):
-            for o in ti.static(range(3)):
-                r = fx[a] - o  # (x_p - x_i) / dx
-                d = ti.abs(r)
-                s = 1.0 if r >= 0 else -1.0
-                if d < 0.25:  # particle domain covers the node
-                    w[a, o] = 0.875 - 2.0 * r * r
-                    dw[a, o] = -4.0 * r
-                elif d < 0.75:
-                    w[a, o] = 1.0 - d
-                    dw[a, o] = -s
-                elif d < 1.25:
-                    w[a, o] = (1.25 - d) * (1.25 - d)
-                    dw[a, o] = -2.0 * s * (1.25 - d)
+            r0 = fx[a]  # node 0: r0 >= 1/4
+            if r0 < 0.75:
+                w[a, 0] = 1.0 - r0
+                dw[a, 0] = -1.0
+            else:
+                w[a, 0] = (1.25 - r0) * (1.25 - r0)
+                dw[a, 0] = -2.0 * (1.25 - r0)
+            r1 = fx[a] - 1.0  # node 1: -3/4 <= r1 < 1/4
+            if r1 > -0.25:
+                w[a, 1] = 0.875 - 2.0 * r1 * r1
+                dw[a, 1] = -4.0 * r1
+            else:
+                w[a, 1] = 1.0 + r1
+                dw[a, 1] = 1.0
+            d2 = 2.0 - fx[a]  # node 2: |r2| in (3/4, 7/4]
+            if d2 < 1.25:
+                w[a, 2] = (1.25 - d2) * (1.25 - d2)
+                dw[a, 2] = 2.0 * (1.25 - d2)
         return base, fx, w, dw
 
     @ti.func
-    def flat(local, win: ti.template()):
-        idx = local[0]
-        for a in ti.static(range(1, D)):
-            idx = idx * win[_NX + a] + local[a]
-        return idx
+    def window(win: ti.template()):
+        """Origin (global cell index) and flat-index strides of the current grid window."""
+        origin = ti.Vector([win[_OX + a] for a in ti.static(range(D))])
+        stride = ti.Vector.one(ti.i32, D)
+        for a in ti.static(range(D - 2, -1, -1)):
+            stride[a] = stride[a + 1] * win[_NX + a + 1]
+        return origin, stride
+
+    @ti.func
+    def stencil(w, dw, off: ti.template()):
+        """Weight and gradient (cell units) of stencil node ``off``: tensor products of the 1D factors."""
+        wt = 1.0
+        grad = ti.Vector.one(float, D)
+        for a in ti.static(range(D)):
+            wt *= w[a, off[a]]
+            for b in ti.static(range(D)):
+                grad[b] *= dw[a, off[a]] if a == b else w[a, off[a]]
+        return wt, grad
 
     @ti.func
     def in_box(boxes: ti.template(), b: ti.template(), pos, z):
@@ -233,62 +254,53 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
         return r
 
     @ti.func
-    def p2g_particle(p, t, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(), grid: ti.template(), win: ti.template(), capg, dt, inv_dx, dx, mp, vol,
-                     kappa, mu):
-        origin = ti.Vector([win[_OX + a] for a in ti.static(range(D))])
+    def p2g_particle(p, t, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
+                     grid: ti.template(), origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu):
         X = x[p] * inv_dx - origin
         base, fx, w, dw = ugimp(X)
         tau = kirchhoff_stress(be[p], kappa, mu)
-        S = (-dt * vol * inv_dx) * block(tau)  # force term -V_p tau grad w (grad in cell units * inv_dx)
+        S = (-dt * vol * inv_dx) * block(tau)  # force -V_p tau grad w (REFERENCE_SPEC 2.5; grad in cells)
         mv = mp * v[p]
         mC = (mp * dx) * C[p]
+        node0 = base.dot(stride)
+        if ti.static(not atomic):
+            node0 += t * capg
         for off in ti.static(ti.grouped(ti.ndrange(*([3] * D)))):
-            wt = 1.0
-            grad = ti.Vector.one(float, D)
-            for a in ti.static(range(D)):
-                wt *= w[a, off[a]]
-                for b in ti.static(range(D)):
-                    grad[b] *= dw[a, off[a]] if a == b else w[a, off[a]]
-            dpos = off - fx  # (x_i - x_p) / dx
-            mom = wt * (mv + mC @ dpos) + S @ grad
-            node = flat(base + off, win)
+            wt, grad = stencil(w, dw, off)
+            mom = wt * (mv + mC @ (off - fx)) + S @ grad  # APIC: m (v + C (x_i - x_p))
             contrib = ti.Vector.zero(float, D + 1)
             for a in ti.static(range(D)):
                 contrib[a] = mom[a]
             contrib[D] = wt * mp
+            k = node0 + off.dot(stride)
             if ti.static(atomic):
-                grid[node] += contrib
+                grid[k] += contrib
             else:
-                k = t * capg + node
                 grid[k] = grid[k] + contrib  # own grid copy per task: no atomics needed
 
     @ti.func
-    def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(), flags: ti.template(), grid: ti.template(), win: ti.template(), boxes: ti.template(), dt,
+    def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
+                     flags: ti.template(), grid: ti.template(), boxes: ti.template(), origin, stride, dt,
                      inv_dx, mu, eta, n, sy, zmid, yue: ti.template()):
-        origin = ti.Vector([win[_OX + a] for a in ti.static(range(D))])
         xp = x[p]
         X = xp * inv_dx - origin
         base, fx, w, dw = ugimp(X)
         vp = ti.Vector.zero(float, D)
         B = ti.Matrix.zero(float, D, D)
+        node0 = base.dot(stride)
         for off in ti.static(ti.grouped(ti.ndrange(*([3] * D)))):
-            wt = 1.0
-            grad = ti.Vector.one(float, D)
-            for a in ti.static(range(D)):
-                wt *= w[a, off[a]]
-                for b in ti.static(range(D)):
-                    grad[b] *= dw[a, off[a]] if a == b else w[a, off[a]]
-            g = grid[flat(base + off, win)]
+            wt, grad = stencil(w, dw, off)
+            g = grid[node0 + off.dot(stride)]
             gv = ti.Vector([g[a] for a in ti.static(range(D))])
             vp += wt * gv
             B += gv.outer_product(grad)
         B *= inv_dx  # C_p = grad v (REFERENCE_SPEC 2.5 step 4)
         b_old = be[p]
         F = ti.Matrix.identity(float, 3) + dt * embed(B)
-        b_new = F @ b_old @ F.transpose()  # elastic predictor, eq. 52 in its F b F^T form
+        b_trial = F @ b_old @ F.transpose()  # elastic predictor, eq. 52 in its F b F^T form
+        b_new = return_mapping(b_trial, b_old, mu, eta, n, sy, dt, yue)  # eq. 57; identity when elastic
         f = flags[p]
-        if is_plastic(b_new, mu, sy, yue):
-            b_new = return_mapping(b_new, b_old, mu, eta, n, sy, dt, yue)  # eq. 57
+        if (b_new != b_trial).any():
             f |= _PLASTIC
         be[p] = b_new
         # walls, tested at the pre-advection position (REFERENCE_SPEC 2.5, 2.7)
@@ -357,12 +369,14 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
         if ti.static(atomic):
             for p in range(n):
                 if win[_OVERFLOW] == 0 and win[_ERROR] == 0:
-                    p2g_particle(p, 0, x, v, C, be, grid, win, capg, dt, inv_dx, dx, mp, vol, kappa, mu)
+                    origin, stride = window(win)
+                    p2g_particle(p, 0, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu)
         else:
             for t in range(tasks):
                 if win[_OVERFLOW] == 0 and win[_ERROR] == 0:
+                    origin, stride = window(win)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
-                        p2g_particle(p, t, x, v, C, be, grid, win, capg, dt, inv_dx, dx, mp, vol, kappa, mu)
+                        p2g_particle(p, t, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu)
         # 4. grid update: gravity, sticking walls, velocity (copy 0 holds (v, m) afterwards)
         for i in range(win[_COUNT]):
             g = grid[i]
@@ -391,7 +405,8 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
         if ti.static(atomic):
             for p in range(n):
                 if win[_OVERFLOW] == 0 and win[_ERROR] == 0:
-                    xn, vp = g2p_particle(p, x, v, C, be, flags, grid, win, boxes, dt, inv_dx, mu, eta, nn,
+                    origin, stride = window(win)
+                    xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta, nn,
                                           sy, zmid, yue)
                     if (xn != xn).any():
                         win[_ERROR] = 1
@@ -407,8 +422,9 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
                     hi = ti.Vector([-2147483647] * D)
                     vmax2 = 0.0
                     bad = 0
+                    origin, stride = window(win)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
-                        xn, vp = g2p_particle(p, x, v, C, be, flags, grid, win, boxes, dt, inv_dx, mu, eta,
+                        xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta,
                                               nn, sy, zmid, yue)
                         if (xn != xn).any():
                             bad = 1
@@ -483,7 +499,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     size = _check_options(dim, flow_rule, precision, image_size)
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
                               depth_mm=depth_mm, dim=dim)
-    t_start = time.perf_counter()
+    t_start, cpu_start = time.perf_counter(), time.process_time()
     eng = _engine(dim, precision)
     t_ready = time.perf_counter()
     run = _Run(eng, scene, eta, n, sigma_y, flow_rule == "yue2015")
@@ -497,6 +513,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     t_end = time.perf_counter()
     stats.update(
         setup_s=t_ready - t_start, sim_s=t_sim - t_ready, render_s=t_end - t_sim, wall_s=t_end - t_start,
+        cpu_s=time.process_time() - cpu_start,
         cell_mm=scene.cell_m * 1e3, dim=dim, precision=precision, flow_rule=flow_rule,
         arch=str(impl.current_cfg().arch).split(".")[-1], tasks=eng.tasks,
     )
