@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 
 # name -> module under studies.commands; each module defines register(subparsers)
@@ -18,6 +19,11 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        # values such as "-1,0.5,3" reach our own validation instead of being taken for an option
+        self._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eExX+-]*$")
+
     def error(self, message):  # argparse prints usage + message; keep it to one line
         sys.stderr.write(f"virheo: error: {message}\n")
         raise SystemExit(2)

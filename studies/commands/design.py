@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import re
 from pathlib import Path
 
 EXAMPLE = "virheo design --material 3.14,0.74,1.24 --done 29x59"
@@ -18,8 +17,6 @@ def register(subparsers) -> None:
         f"Units: material in SI (eta in Pa s^n, n dimensionless, sigma_y in Pa); setups WxH in millimetres "
         f"(width along the flow, then height). Example: {EXAMPLE}",
     )
-    # let values such as "-1,0.5,3" reach our own validation instead of being taken for an option
-    p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eExX+-]*$")
     p.add_argument("--material", required=True, metavar="ETA,N,SIGMA_Y",
                    help="current estimate in SI: eta [Pa s^n], n [-], sigma_y [Pa], e.g. 3.14,0.74,1.24 "
                    "(must lie in the material space: eta 1e-4..30, n 0.3..1, sigma_y 0..40)")

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import re
 
 import numpy as np
 
@@ -16,7 +15,6 @@ def register(subparsers) -> None:
         "Herschel-Bulkley curve sigma = sigma_y + eta * rate^n by least squares in log10 stress over the reliable "
         "range (default 1..100 1/s). Optionally score a given material (e.g. a video estimate) on the same range.",
     )
-    p._negative_number_matcher = re.compile(r"^-\.?\d[\d.,eE+-]*$")
     p.add_argument("file", metavar="FILE.csv", help="instrument CSV export")
     p.add_argument("--lo", type=float, default=1.0, help="lowest shear rate of the fit, 1/s (default 1)")
     p.add_argument("--hi", type=float, default=100.0, help="highest shear rate of the fit, 1/s (default 100)")
