@@ -28,7 +28,7 @@ SIDE_WALL_M = 3.0e-3  # thickness of the side walls (spec 2.2: 0.3 cm)
 BACK_WALL_M = 1.0e-2  # thickness of the back wall and the floor (spec 2.2: 1 cm)
 WALL_TOP_M = 0.2  # walls are 20 cm tall
 SETUP_RANGE_MM = (20.0, 70.0)  # paper section 3.3
-PARTICLES_PER_CELL = 2  # per axis (spec 2.3: cell_samples_per_dim)
+PARTICLES_PER_CELL = 2  # per axis (spec 2.3: cell_samples_per_dim), the default of DamBreak.ppc
 MAX_PARTICLES = 6_000_000  # refuse cell widths that would need more particles than this
 
 
@@ -80,12 +80,14 @@ class DamBreak:
     density: float
     cell_m: float
     dim: int = 3
+    ppc: int = PARTICLES_PER_CELL  # particles per cell per axis
     kappa: float = KAPPA_PA
     mu: float = MU_PA
     gravity: float = GRAVITY
 
     @classmethod
-    def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = 40.0, dim: int = 3) -> "DamBreak":
+    def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = 40.0, dim: int = 3,
+              ppc: int = PARTICLES_PER_CELL) -> "DamBreak":
         w, h = check_setup(setup)
         density = float(density)
         if not (math.isfinite(density) and density > 0):
@@ -98,7 +100,9 @@ class DamBreak:
             raise ValueError(f"cell width must be within 0.2-10 mm, got {cell_mm!r}")
         if dim not in (2, 3):
             raise ValueError(f"dim must be 2 or 3, got {dim!r}")
-        scene = cls(w, h, depth_mm * 1e-3, density, cell_mm * 1e-3, dim)
+        if ppc not in (1, 2, 3, 4):
+            raise ValueError(f"particles per cell must be 1-4 per axis, got {ppc!r}")
+        scene = cls(w, h, depth_mm * 1e-3, density, cell_mm * 1e-3, dim, int(ppc))
         if scene.n_particles > MAX_PARTICLES:
             raise ValueError(f"cell width {cell_mm:g} mm needs {scene.n_particles} particles (max {MAX_PARTICLES})")
         return scene
@@ -106,8 +110,8 @@ class DamBreak:
     # --- particles (REFERENCE_SPEC 2.3) ---
     @property
     def spacing_m(self) -> float:
-        """Particle lattice spacing: cell / 2 (2 particles per cell per axis)."""
-        return self.cell_m / PARTICLES_PER_CELL
+        """Particle lattice spacing: cell / ppc (the reference: 2 particles per cell per axis)."""
+        return self.cell_m / self.ppc
 
     @property
     def half_length_m(self) -> float:
@@ -123,10 +127,17 @@ class DamBreak:
     def particle_mass(self) -> float:
         return self.density * self.particle_volume
 
+    @property
+    def overlap_m(self) -> float:
+        """How far the particle block reaches into the walls: 1.5 mm (spec 2.2), at least one spacing so
+        that coarse lattices still put a whole particle layer inside every wall."""
+        return max(OVERLAP_M, self.spacing_m)
+
     def block(self) -> tuple[np.ndarray, np.ndarray]:
         """Corners of the particle block: the specimen plus the overlap into floor, back and side walls."""
-        lo = np.array([-OVERLAP_M, -OVERLAP_M, -OVERLAP_M])
-        hi = np.array([self.width_m, self.height_m, self.depth_m + OVERLAP_M])
+        o = self.overlap_m
+        lo = np.array([-o, -o, -o])
+        hi = np.array([self.width_m, self.height_m, self.depth_m + o])
         return lo[: self.dim], hi[: self.dim]
 
     def lattice_shape(self) -> tuple[int, ...]:

@@ -47,8 +47,10 @@ from taichi.lang import impl
 
 from mpm import scene as sc
 
-DEFAULT_CELL_MM = 3.0  # chosen by measurement: see docs/performance.md, "Forward model"
+DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/performance.md
 CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6 is still stable, 0.8 blows up (docs/performance.md)
+PARTICLES_PER_CELL = 1  # per axis (the reference uses 2; see docs/performance.md)
+GRID_SHIFT = 0.0  # grid nodes sit at (I + GRID_SHIFT) * dx
 SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame interval
 FLOW_RULES = ("paper", "yue2015")
 PRECISIONS = ("f32", "f64")
@@ -169,44 +171,46 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
     nd = ti.types.ndarray()
 
     @ti.func
-    def ugimp(X):
-        """uGIMP weights per axis (REFERENCE_SPEC 2.4, l_p = dx/4) for stencil nodes base + 0..2.
+    def ugimp(X, l):
+        """uGIMP weights per axis (REFERENCE_SPEC 2.4) for stencil nodes base + 0..2.
 
-        X: position in cell units relative to the window origin. Returns base, fx = X - base in
-        [0.25, 1.25), the normalised 1D factors N = S / (2 l_p) (they sum to 1) and dN/dx_p in cell units.
-        With r = fx - o = (x_p - x_i)/dx: N = 7/8 - 2 r^2 for |r| < 1/4, 1 - |r| for |r| < 3/4,
-        (5/4 - |r|)^2 for |r| < 5/4, else 0; node 0 sees r in [1/4, 5/4), node 1 [-3/4, 1/4),
-        node 2 [-7/4, -3/4).
+        X: position in cell units relative to the window origin, l = l_p / dx <= 1/2 (1/4 with two
+        particles per cell). Returns base, fx = X - base in [l, 1 + l), the normalised 1D factors
+        N = S / (2 l_p) (they sum to 1) and dN/dx_p in cell units. With r = fx - o = (x_p - x_i)/dx:
+        N = 1 - (l^2 + r^2) / (2 l) for |r| < l, 1 - |r| for |r| < 1 - l, (1 + l - |r|)^2 / (4 l) for
+        |r| < 1 + l, else 0; node 0 sees r in [l, 1 + l), node 1 [l - 1, l), node 2 [l - 2, l - 1).
         """
-        base = ti.floor(X - 0.25, ti.i32)
+        base = ti.floor(X - l, ti.i32)
         fx = X - base
+        q = 0.25 / l
         w = ti.Matrix.zero(float, D, 3)
         dw = ti.Matrix.zero(float, D, 3)
         for a in ti.static(range(D)):
-            r0 = fx[a]  # node 0: r0 >= 1/4
-            if r0 < 0.75:
+            r0 = fx[a]  # node 0
+            if r0 < 1.0 - l:
                 w[a, 0] = 1.0 - r0
                 dw[a, 0] = -1.0
             else:
-                w[a, 0] = (1.25 - r0) * (1.25 - r0)
-                dw[a, 0] = -2.0 * (1.25 - r0)
-            r1 = fx[a] - 1.0  # node 1: -3/4 <= r1 < 1/4
-            if r1 > -0.25:
-                w[a, 1] = 0.875 - 2.0 * r1 * r1
-                dw[a, 1] = -4.0 * r1
+                e0 = 1.0 + l - r0
+                w[a, 0] = q * e0 * e0
+                dw[a, 0] = -2.0 * q * e0
+            r1 = fx[a] - 1.0  # node 1
+            if r1 > -l:
+                w[a, 1] = 1.0 - 2.0 * q * (l * l + r1 * r1)
+                dw[a, 1] = -4.0 * q * r1
             else:
                 w[a, 1] = 1.0 + r1
                 dw[a, 1] = 1.0
-            d2 = 2.0 - fx[a]  # node 2: |r2| in (3/4, 7/4]
-            if d2 < 1.25:
-                w[a, 2] = (1.25 - d2) * (1.25 - d2)
-                dw[a, 2] = 2.0 * (1.25 - d2)
+            e2 = l - 1.0 + fx[a]  # node 2: 1 + l - |r2|
+            if e2 > 0.0:
+                w[a, 2] = q * e2 * e2
+                dw[a, 2] = 2.0 * q * e2
         return base, fx, w, dw
 
     @ti.func
-    def window(win: ti.template()):
-        """Origin (global cell index) and flat-index strides of the current grid window."""
-        origin = ti.Vector([win[_OX + a] for a in ti.static(range(D))])
+    def window(win: ti.template(), shift):
+        """Origin (in cells: node (0,..) of the window sits at origin * dx) and flat-index strides."""
+        origin = ti.Vector([win[_OX + a] + shift for a in ti.static(range(D))])
         stride = ti.Vector.one(ti.i32, D)
         for a in ti.static(range(D - 2, -1, -1)):
             stride[a] = stride[a + 1] * win[_NX + a + 1]
@@ -255,9 +259,9 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
 
     @ti.func
     def p2g_particle(p, t, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
-                     grid: ti.template(), origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu):
+                     grid: ti.template(), origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu, lh):
         X = x[p] * inv_dx - origin
-        base, fx, w, dw = ugimp(X)
+        base, fx, w, dw = ugimp(X, lh)
         tau = kirchhoff_stress(be[p], kappa, mu)
         S = (-dt * vol * inv_dx) * block(tau)  # force -V_p tau grad w (REFERENCE_SPEC 2.5; grad in cells)
         mv = mp * v[p]
@@ -281,10 +285,10 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
     @ti.func
     def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
                      flags: ti.template(), grid: ti.template(), boxes: ti.template(), origin, stride, dt,
-                     inv_dx, mu, eta, n, sy, zmid, yue: ti.template()):
+                     inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template()):
         xp = x[p]
         X = xp * inv_dx - origin
-        base, fx, w, dw = ugimp(X)
+        base, fx, w, dw = ugimp(X, lh)
         vp = ti.Vector.zero(float, D)
         B = ti.Matrix.zero(float, D, D)
         node0 = base.dot(stride)
@@ -330,7 +334,8 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
     @ti.kernel
     def step(x: nd, v: nd, C: nd, be: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd, boxes: nd,
              lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float, kappa: float,
-             mu: float, eta: float, nn: float, sy: float, gravity: float, zmid: float, yue: ti.template()):
+             mu: float, eta: float, nn: float, sy: float, gravity: float, zmid: float, shift: float,
+             lh: float, yue: ti.template()):
         inv_dx = 1.0 / dx
         # 1. clear the previous window in every grid copy
         for i in range(win[_COUNT]):
@@ -369,14 +374,16 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
         if ti.static(atomic):
             for p in range(n):
                 if win[_OVERFLOW] == 0 and win[_ERROR] == 0:
-                    origin, stride = window(win)
-                    p2g_particle(p, 0, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu)
+                    origin, stride = window(win, shift)
+                    p2g_particle(p, 0, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu,
+                                 lh)
         else:
             for t in range(tasks):
                 if win[_OVERFLOW] == 0 and win[_ERROR] == 0:
-                    origin, stride = window(win)
+                    origin, stride = window(win, shift)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
-                        p2g_particle(p, t, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu)
+                        p2g_particle(p, t, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu,
+                                 lh)
         # 4. grid update: gravity, sticking walls, velocity (copy 0 holds (v, m) afterwards)
         for i in range(win[_COUNT]):
             g = grid[i]
@@ -389,7 +396,7 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
                 for a in ti.static(range(D - 1, -1, -1)):
                     local[a] = rest % win[_NX + a]
                     rest = rest // win[_NX + a]
-                pos = ti.Vector([(local[a] + win[_OX + a]) * dx for a in ti.static(range(D))])
+                pos = ti.Vector([(local[a] + win[_OX + a] + shift) * dx for a in ti.static(range(D))])
                 mom = ti.Vector([g[a] for a in ti.static(range(D))])
                 mom[1] -= dt * m * gravity
                 z = zcoord(pos, zmid)
@@ -405,12 +412,12 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
         if ti.static(atomic):
             for p in range(n):
                 if win[_OVERFLOW] == 0 and win[_ERROR] == 0:
-                    origin, stride = window(win)
+                    origin, stride = window(win, shift)
                     xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta, nn,
-                                          sy, zmid, yue)
+                                          sy, zmid, lh, yue)
                     if (xn != xn).any():
                         win[_ERROR] = 1
-                    base = ti.floor(xn * inv_dx - 0.25, ti.i32)
+                    base = ti.floor(xn * inv_dx - shift - lh, ti.i32)
                     for a in ti.static(range(D)):
                         ti.atomic_min(acc[0, a], base[a])
                         ti.atomic_max(acc[0, 3 + a], base[a])
@@ -422,13 +429,13 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
                     hi = ti.Vector([-2147483647] * D)
                     vmax2 = 0.0
                     bad = 0
-                    origin, stride = window(win)
+                    origin, stride = window(win, shift)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
                         xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta,
-                                              nn, sy, zmid, yue)
+                                              nn, sy, zmid, lh, yue)
                         if (xn != xn).any():
                             bad = 1
-                        base = ti.floor(xn * inv_dx - 0.25, ti.i32)
+                        base = ti.floor(xn * inv_dx - shift - lh, ti.i32)
                         lo = ti.min(lo, base)
                         hi = ti.max(hi, base)
                         vmax2 = ti.max(vmax2, vp.norm_sqr())
@@ -444,12 +451,12 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
                 win[_DONE] += 1
 
     @ti.kernel
-    def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float):
+    def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, shift: float, lh: float):
         for t in range(tasks):
             lo = ti.Vector([2147483647] * D)
             hi = ti.Vector([-2147483647] * D)
             for p in range(t * n // tasks, (t + 1) * n // tasks):
-                base = ti.floor(x[p] / dx - 0.25, ti.i32)
+                base = ti.floor(x[p] / dx - shift - lh, ti.i32)
                 lo = ti.min(lo, base)
                 hi = ti.max(hi, base)
             for a in ti.static(range(D)):
@@ -498,7 +505,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     eta, n, sigma_y = sc.check_material(material)
     size = _check_options(dim, flow_rule, precision, image_size)
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
-                              depth_mm=depth_mm, dim=dim)
+                              depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL)
     t_start, cpu_start = time.perf_counter(), time.process_time()
     eng = _engine(dim, precision)
     t_ready = time.perf_counter()
@@ -514,7 +521,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     stats.update(
         setup_s=t_ready - t_start, sim_s=t_sim - t_ready, render_s=t_end - t_sim, wall_s=t_end - t_start,
         cpu_s=time.process_time() - cpu_start,
-        cell_mm=scene.cell_m * 1e3, dim=dim, precision=precision, flow_rule=flow_rule,
+        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, dim=dim, precision=precision, flow_rule=flow_rule,
         arch=str(impl.current_cfg().arch).split(".")[-1], tasks=eng.tasks,
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)
@@ -551,7 +558,7 @@ class _Run:
         eng.lim.from_numpy(lim)
         win = np.zeros(16, np.int32)
         eng.win.from_numpy(win)
-        eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m)
+        eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m, GRID_SHIFT, scene.half_length_m / scene.cell_m)
         first = eng.acc.to_numpy()
         span = first[:, 3:3 + d].max(0) + 3 - first[:, :d].min(0)
         eng.ensure_grid(int(np.prod(span)) * 2)
@@ -562,7 +569,8 @@ class _Run:
         for _ in range(steps):
             eng.step(eng.x, eng.v, eng.C, eng.be, eng.flags, eng.grid, eng.win, eng.acc, eng.accf, eng.boxes,
                      eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass, s.particle_volume, s.kappa,
-                     s.mu, self.eta, self.n, self.sigma_y, s.gravity, s.plane_z_m, self.yue)
+                     s.mu, self.eta, self.n, self.sigma_y, s.gravity, s.plane_z_m, GRID_SHIFT,
+                     s.half_length_m / s.cell_m, self.yue)
 
     def _advance(self, steps: int, dt: float) -> None:
         """Run ``steps`` steps of size dt, growing the grid whenever the window overflows it."""
@@ -643,8 +651,9 @@ class _Run:
             return p
         # plane strain: extrude the section over the 3D particle layers in z (near-wall layer excluded)
         s = self.scene.spacing_m
-        nz = int(math.ceil((self.scene.depth_m + 2 * sc.OVERLAP_M) / s - 1e-9))
-        zs = -sc.OVERLAP_M + s * (np.arange(nz) + 0.5)
+        o = self.scene.overlap_m
+        nz = int(math.ceil((self.scene.depth_m + 2 * o) / s - 1e-9))
+        zs = -o + s * (np.arange(nz) + 0.5)
         zs = zs[zs <= self.scene.depth_m]
         out = np.empty((len(p) * len(zs), 3))
         out[:, :2] = np.repeat(p, len(zs), axis=0)

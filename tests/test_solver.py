@@ -1,6 +1,7 @@
 """Taichi MPM dam-break (mpm.simulate): physics invariants on small, coarse runs.
 
-All runs share one process and one compiled kernel per dim (20 x 20 mm, 4 mm cells, ~2.7k particles).
+All runs share one process and one compiled kernel per dim (20 x 20 mm, 2.5 mm cells, ~1.5k particles with
+the default of one particle per cell per axis).
 """
 import functools
 import math
@@ -14,7 +15,7 @@ from mpm import scene as sc
 
 SETUP = NS(width_mm=20, height_mm=20)
 RHO = 1000.0
-CELL = 4.0
+CELL = 2.5
 
 
 @functools.lru_cache(maxsize=None)
@@ -48,7 +49,7 @@ def test_mass_is_conserved_and_volume_nearly_so():
     """Particle mass is fixed; the grid receives exactly that mass (uGIMP weights sum to one); J stays
     within 5 % of 1 with the hydrostatic compression of order rho g H / (2 kappa)."""
     st = run(0.3).stats
-    assert st["mass_kg"] == pytest.approx(st["n_particles"] * RHO * (CELL * 1e-3 / 2) ** 3)
+    assert st["mass_kg"] == pytest.approx(st["n_particles"] * RHO * st["spacing_m"] ** 3)
     assert st["grid_mass_rel_err"] < 2e-5  # f32 sums
     expected = RHO * sc.GRAVITY * SETUP.height_mm * 1e-3 / (2 * sc.KAPPA_PA)  # ~1 %
     for j in st["mean_J"]:
@@ -65,7 +66,9 @@ def test_stiff_column_never_yields_and_only_sags():
     sag_scale = RHO * sc.GRAVITY * h * h / sc.MU_PA
     w = SETUP.width_mm * 1e-3
     sag = stiff.front_m.max() - w
-    first_column = -sc.OVERLAP_M + (math.ceil((w + sc.OVERLAP_M) / (CELL * 5e-4)) - 0.5) * CELL * 5e-4
+    scene = sc.DamBreak.build(SETUP, density=RHO, cell_mm=CELL, ppc=stiff.stats["ppc"])
+    p = scene.particles()
+    first_column = p[~scene.frozen_and_hidden(p)[0], 0].max()
     assert stiff.front_m[-1] > first_column  # it does bulge a little
     flow = run(0.3).front_m[-1] - w
     assert sag < 1.5 * sag_scale
@@ -104,7 +107,7 @@ def test_repeated_calls_reuse_the_compiled_kernel():
     run(0.3)
     eng = solver._ENGINES[(3, "f32")]
     compiled = len(eng.step._primal.compiled_kernels)
-    mpm.simulate(NS(eta=2.0, n=0.5, sigma_y=1.0), NS(width_mm=25, height_mm=22), density=1100.0, cell_mm=4.5)
+    mpm.simulate(NS(eta=2.0, n=0.5, sigma_y=1.0), NS(width_mm=25, height_mm=22), density=1100.0, cell_mm=3.0)
     assert solver._ENGINES[(3, "f32")] is eng
     assert len(eng.step._primal.compiled_kernels) == compiled
 
