@@ -8,7 +8,7 @@ setup-2 footage at the experimenters' setup-1 estimate (reference pipeline: 0.00
 
     python bench/bench_forward.py                 # everything but the 70 x 70 mm run at 1.26 mm
     python bench/bench_forward.py --paper-70      # also that one (~900k particles, tens of minutes)
-    python bench/bench_forward.py --experiments 4 # convergence on the first 4 shared experiments only
+    python bench/bench_forward.py --experiments 4 # convergence on the first 4 (small) shared experiments only
     python bench/bench_forward.py --skip-timing --skip-convergence   # just the Worcestershire loss
 """
 import argparse
@@ -27,33 +27,40 @@ from mpm import solver  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
 
 REFERENCE_S = 570.0 + 8 * 24.0  # REFERENCE_SPEC 8: 4500 steps in 570 s + 8 frames skinned at 19-32 s each
+PAPER = ("paper", 1.26, 2)  # the reference's discretisation: 1.26 mm cells, 2 particles per cell per axis
 
 
 def load() -> str:
     return "load %.1f/%.1f" % os.getloadavg()[:2]
 
 
-def evaluate(material, setup, *, density=1000.0, cell_mm=None, camera=None, depth_mm=40.0):
-    return mpm.simulate(material, setup, density=density, cell_mm=cell_mm, camera=camera or Camera.default(),
-                        depth_mm=depth_mm)
+def evaluate(material, setup, *, density=1000.0, cell_mm=None, camera=None, depth_mm=40.0, ppc=None):
+    """One evaluation; ppc overrides solver.PARTICLES_PER_CELL for this call."""
+    keep = solver.PARTICLES_PER_CELL
+    solver.PARTICLES_PER_CELL = keep if ppc is None else ppc
+    try:
+        return mpm.simulate(material, setup, density=density, cell_mm=cell_mm, camera=camera or Camera.default(),
+                            depth_mm=depth_mm)
+    finally:
+        solver.PARTICLES_PER_CELL = keep
 
 
 def timing(paper_70: bool) -> None:
     mat = NS(eta=1.0, n=0.8, sigma_y=5.0)  # a mid-range material, flowing but not runny
-    print(f"# timing, material eta=1 Pa s^n, n=0.8, sigma_y=5 Pa, rho=1000; default cell {solver.DEFAULT_CELL_MM} mm;"
-          f" threads {solver._threads()}")
+    default = ("default", solver.DEFAULT_CELL_MM, solver.PARTICLES_PER_CELL)
+    print(f"# timing, material eta=1 Pa s^n, n=0.8, sigma_y=5 Pa, rho=1000; threads {solver._threads()}")
     evaluate(mat, NS(width_mm=30, height_mm=20), cell_mm=4.0)  # compile / load kernels first
-    print(f"{'setup':>8} {'cell':>5} {'particles':>9} {'steps':>5} {'wall_s':>7} {'sim_s':>7} {'render_s':>8} "
-          f"{'cpu_s':>7} {'Mpstep/s':>8} {'Mpstep/cpu-s':>12} {'vs ref':>6}  load")
+    print(f"{'setup':>8} {'run':>8} {'cell':>5} {'ppc':>3} {'particles':>9} {'steps':>5} {'wall_s':>7} {'sim_s':>7} "
+          f"{'render_s':>8} {'cpu_s':>7} {'Mpstep/s':>8} {'Mpstep/cpu-s':>12} {'vs ref':>6}  load")
     for w, h in ((30, 20), (70, 70)):
-        for cell in (1.26, solver.DEFAULT_CELL_MM):
-            if (w, h, cell) == (70, 70, 1.26) and not paper_70:
-                print(f"{w}x{h:<5} {cell:5.2f}  (skipped: pass --paper-70)")
+        for name, cell, ppc in (PAPER, default):
+            if (w, h, name) == (70, 70, "paper") and not paper_70:
+                print(f"{w}x{h:<5} {name:>8} {cell:5.2f} {ppc:3d}  (skipped: pass --paper-70)")
                 continue
-            sim = evaluate(mat, NS(width_mm=w, height_mm=h), cell_mm=cell)
+            sim = evaluate(mat, NS(width_mm=w, height_mm=h), cell_mm=cell, ppc=ppc)
             st = sim.stats
             ps = st["n_particles"] * st["steps"]
-            print(f"{w}x{h:<5} {cell:5.2f} {st['n_particles']:9d} {st['steps']:5d} {st['wall_s']:7.1f} {st['sim_s']:7.1f} "
+            print(f"{w}x{h:<5} {name:>8} {cell:5.2f} {ppc:3d} {st['n_particles']:9d} {st['steps']:5d} {st['wall_s']:7.1f} {st['sim_s']:7.1f} "
                   f"{st['render_s']:8.2f} {st['cpu_s']:7.1f} {ps / st['sim_s'] / 1e6:8.2f} {ps / st['cpu_s'] / 1e6:12.2f} "
                   f"{REFERENCE_S / st['wall_s'] if (w, h) == (30, 20) else float('nan'):6.1f}  {load()}", flush=True)
 
@@ -65,12 +72,18 @@ def _table1():
                             sigma_y=float(r["paper_sigma_y_Pa"])) for r in manifest()}
 
 
-def convergence(count: int | None) -> None:
+def convergence(count: int | None, max_area: float) -> None:
     from mpm.experiment import iter_shared, load as load_experiment
     from mpm.loss import iou
 
     table = _table1()
-    folders = [p for p in iter_shared() if p.name in table][:count]
+    folders = []
+    for p in iter_shared():
+        if p.name in table:
+            e = load_experiment(p, frames=False)
+            if e.width_mm * e.height_mm <= max_area:
+                folders.append(p)
+    folders = folders[:count]
     fine = solver.DEFAULT_CELL_MM / 2
     print(f"# silhouette convergence: IoU of cell {solver.DEFAULT_CELL_MM} mm vs {fine} mm, Table-1 parameters")
     print(f"{'experiment':<52} {'mean IoU':>8} {'min IoU':>8} {'t_default':>9} {'t_fine':>7}  load")
@@ -103,10 +116,10 @@ def worcestershire() -> None:
              sigma_y=float(row["estimate_after_setup1_sigma_y_Pa"]))
     exp = load_experiment(real_world_dir() / "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2")
     print("# Worcestershire setup 2 at the setup-1 estimate (reference pipeline 0.0040, target <= 0.006)")
-    for cell in (solver.DEFAULT_CELL_MM, 2.0, 1.26):
+    for name, cell, ppc in (("default", solver.DEFAULT_CELL_MM, solver.PARTICLES_PER_CELL), PAPER):
         sim = evaluate(mat, NS(width_mm=exp.width_mm, height_mm=exp.height_mm), density=exp.density, cell_mm=cell,
-                       camera=exp.camera, depth_mm=exp.depth_mm)
-        print(f"cell {cell:4.2f} mm: loss {video_loss(sim.silhouettes, exp.frames):.4f}  wall {sim.stats['wall_s']:.1f} s"
+                       camera=exp.camera, depth_mm=exp.depth_mm, ppc=ppc)
+        print(f"{name:>8} cell {cell:4.2f} mm, {ppc} ppc: loss {video_loss(sim.silhouettes, exp.frames):.4f}  wall {sim.stats['wall_s']:.1f} s"
               f"  {load()}", flush=True)
 
 
@@ -114,6 +127,8 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--paper-70", action="store_true", help="also time 70 x 70 mm at 1.26 mm cells (slow)")
     ap.add_argument("--experiments", default="all", help="number of shared experiments for the IoU study, or all")
+    ap.add_argument("--max-area-mm2", type=float, default=1000.0,
+                    help="IoU study only on setups with W*H below this (the 2x finer run costs 16x)")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--skip-convergence", action="store_true")
     ap.add_argument("--skip-loss", action="store_true")
@@ -122,7 +137,7 @@ def main(argv=None) -> None:
     if not a.skip_timing:
         timing(a.paper_70)
     if not a.skip_convergence:
-        convergence(None if a.experiments == "all" else int(a.experiments))
+        convergence(None if a.experiments == "all" else int(a.experiments), a.max_area_mm2)
     if not a.skip_loss:
         worcestershire()
     print(f"# total {time.time() - t0:.0f} s")

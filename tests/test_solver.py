@@ -54,7 +54,9 @@ def test_mass_is_conserved_and_volume_nearly_so():
     expected = RHO * sc.GRAVITY * SETUP.height_mm * 1e-3 / (2 * sc.KAPPA_PA)  # ~1 %
     for j in st["mean_J"]:
         assert abs(j - 1) < 0.05
-        assert 0.25 * expected < 1 - j < 3 * expected  # sticking walls carry part of the weight
+        assert 0.1 * expected < 1 - j < 3 * expected  # compressed, less as the column spreads
+    # at frame 1 the column still stands (sticking walls carry part of its weight)
+    assert 0.3 * expected < 1 - st["mean_J"][0] < 3 * expected
 
 
 def test_stiff_column_never_yields_and_only_sags():
