@@ -119,7 +119,8 @@ class _Engine:
         self.dim, self.precision, self.prog = dim, precision, prog
         self.dtype = ti.f32 if precision == "f32" else ti.f64
         self.np_dtype = np.float32 if precision == "f32" else np.float64
-        self.atomic = impl.current_cfg().arch != ti.cpu
+        # GPU: atomics and one grid copy; $VIRHEO_MPM_ATOMIC=1 forces that path on the CPU (for testing)
+        self.atomic = impl.current_cfg().arch != ti.cpu or os.environ.get("VIRHEO_MPM_ATOMIC") == "1"
         self.tasks = 1 if self.atomic else _threads()
         self.step, self.init_bbox, self.grid_mass = _build_kernels(dim, self.tasks, self.atomic)
         self.cap_p = 0

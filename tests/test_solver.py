@@ -144,3 +144,19 @@ def test_importing_mpm_does_not_start_taichi():
             "assert impl.get_runtime().prog is None\n"
             "assert callable(mpm.simulate)\n")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_f64_option_agrees_with_f32():
+    """precision="f64" (its own process: Taichi holds one default float per process)."""
+    import json
+    import subprocess
+    import sys
+
+    code = ("import json; from types import SimpleNamespace as NS; import mpm\n"
+            f"s = mpm.simulate(NS(eta=0.3, n=1.0, sigma_y=0.0), NS(width_mm={SETUP.width_mm}, height_mm={SETUP.height_mm}),"
+            f" density={RHO}, cell_mm={CELL}, precision='f64')\n"
+            "print(json.dumps([list(s.front_m), s.stats['grid_mass_rel_err'], s.stats['precision']]))\n")
+    out = subprocess.run([sys.executable, "-c", code], check=True, timeout=600, capture_output=True, text=True).stdout
+    front64, mass_err, precision = json.loads(out.strip().splitlines()[-1])
+    assert precision == "f64" and mass_err < 1e-12
+    assert np.allclose(front64, run(0.3).front_m, atol=0.5e-3)
