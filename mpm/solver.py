@@ -627,7 +627,7 @@ class _Run:
             mass_err.append(abs(float(eng.out.to_numpy()[0]) - m_total) / m_total)
         flags = eng.flags.to_numpy()[: self.count]
         stats = dict(
-            n_particles=self.count, steps=steps, dt_min=min(dts), dt_max=max(dts), max_speed=vmax_seen,
+            n_particles=self.count, steps=steps, dt_min=float(min(dts)), dt_max=float(max(dts)), max_speed=float(vmax_seen),
             plastic_count=int(((flags & _PLASTIC) != 0).sum()), mean_J=mean_j, mass_kg=m_total,
             grid_mass_rel_err=max(mass_err), n_visible=visible, wave_speed=c,
             spacing_m=scene.spacing_m, grid_capacity=eng.cap_g, frozen_count=int(((flags & _FROZEN) != 0).sum()),
