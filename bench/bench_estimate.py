@@ -31,6 +31,8 @@ def main(argv=None):
     p.add_argument("--setup", default="40x50")
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--preset", default="quick")
+    p.add_argument("--store", default=None, help="reuse this store (default: a fresh temporary one)")
+    p.add_argument("--second", default=None, help="fixed second setup WxH instead of similarity.design")
     args = p.parse_args(argv)
     preset = E.get_preset(args.preset)
     changes = {k: v for k, v in (("cell_mm", args.cell), ("dim", args.dim), ("generations", args.generations),
@@ -41,15 +43,16 @@ def main(argv=None):
     print(f"# preset {preset}")
     for seed in args.seeds:
         with tempfile.TemporaryDirectory() as d:
-            store = Store(d)
+            store = Store(args.store or d)
             t0 = time.perf_counter()
             with batch.local_executor(args.workers) as ex:
-                est, filmed = E.emulate_virheometry(truth, first, preset=preset, seed=seed, store=store, executor=ex)
+                kw = {"propose": (lambda m, done: Setup.parse(args.second))} if args.second else {}
+                est, filmed = E.emulate_virheometry(truth, first, preset=preset, seed=seed, store=store, executor=ex, **kw)
             wall = time.perf_counter() - t0
             sims = store.count()
             errs = [e_rel(truth, s.material) for s in est.stages]
             print(f"seed {seed}: wall {wall:.0f} s, {sims} simulations ({wall / max(sims, 1):.2f} s each), "
-                  f"E_rel per stage {[round(v, 4) for v in errs]}, setups {est.setups}, "
+                  f"E_rel per stage {[round(v, 4) for v in errs]}, loss per stage {[round(s.loss, 5) for s in est.stages]}, setups {est.setups}, "
                   f"estimate {est.material}", flush=True)
 
 

@@ -32,7 +32,7 @@ def test_demo_shortened_with_fake_forward_model(tmp_path):
     result = json.loads((out / "result.json").read_text())
     for who in ("truth", "estimate"):
         assert set(result[who]) == {"eta", "n", "sigma_y"}
-    assert result["truth"] == {"eta": 2.0, "n": 0.6, "sigma_y": 10.0}
+    assert result["truth"] == {"eta": 3.0, "n": 0.5, "sigma_y": 15.0}
     assert 0 <= result["e_rel"] and result["wall_seconds"] > 0
     assert result["setups"][0] == "40x50"
     if _design_available():

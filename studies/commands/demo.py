@@ -5,8 +5,8 @@ import argparse
 import time
 from pathlib import Path
 
-# The embedded default specimen (SI) and its first setup (mm): a mayonnaise-like sauce.
-DEFAULT_TRUTH = "2.0,0.6,10.0"
+# The embedded default specimen (SI) and its first setup (mm); see docs/performance.md (estimate).
+DEFAULT_TRUTH = "3.0,0.5,15.0"
 DEFAULT_FIRST_SETUP = "40x50"
 
 
