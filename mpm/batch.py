@@ -215,22 +215,26 @@ def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, exec
                 on_result(req, hit, True)
         else:
             todo[key] = req
+    def finish(key: str, res: SimResult) -> None:
+        if store is not None:
+            store.put(todo[key], res)
+        results[key] = res
+        if on_result:
+            on_result(todo[key], res, False)
+
     if todo:
-        own = executor is None
-        ex = local_executor(0) if own else as_executor(executor)
-        futures = {ex.submit(run_one, req): key for key, req in todo.items()}
-        try:
-            for fut in as_completed(futures):
-                key = futures[fut]
-                res = fut.result()
-                if store is not None:
-                    store.put(todo[key], res)
-                results[key] = res
-                if on_result:
-                    on_result(todo[key], res, False)
-        finally:
-            for fut in futures:
-                fut.cancel()
+        ex = local_executor(0) if executor is None else as_executor(executor)
+        if isinstance(ex, InlineExecutor):  # one at a time, each stored before the next starts
+            for key, req in todo.items():
+                finish(key, run_one(req))
+        else:
+            futures = {ex.submit(run_one, req): key for key, req in todo.items()}
+            try:
+                for fut in as_completed(futures):
+                    finish(futures[fut], fut.result())
+            finally:
+                for fut in futures:
+                    fut.cancel()
     return [results[req.key] for req in requests]
 
 
