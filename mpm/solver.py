@@ -10,6 +10,12 @@ One time step follows REFERENCE_SPEC 2.5 (the authors' order):
    predictor b* = F b F^T with F = I + dt C (eq. 52), plastic correction ``return_mapping`` (eq. 57);
    particles inside a wall box get v = 0, C = 0 (frozen, they still carry stress); advection x += dt v.
 
+Discretisation: particles on a cell-centred lattice (no jitter), ``PARTICLES_PER_CELL`` per cell per axis
+(default 1; the reference uses 2) with uGIMP half-length l_p = spacing / 2; default cell width
+``DEFAULT_CELL_MM`` = 1.5 mm. Both chosen by a convergence study (docs/performance.md, "Forward model"):
+for equal cost a finer grid with one particle per cell converges better than the reference's two per axis.
+Grid nodes lie on the wall planes (x = 0, y = 0, z = 0 are nodes).
+
 Speed on a small CPU:
 
 * The grid is a flat, dense window over the particles' stencil bounding box, recomputed every step (its
@@ -34,7 +40,8 @@ over the 3D particle layers in z so that silhouettes compare with 3D ones.
 Precision: ``"f32"`` (default) or ``"f64"`` sets Taichi's default float; Taichi holds one default per
 process, so switching precision re-initialises Taichi (and recompiles) -- keep one per process.
 Arch: ``$VIRHEO_ARCH`` = auto (default: CUDA when available, else CPU) | cpu | cuda; CPU threads
-``$VIRHEO_THREADS`` (default: all cores).
+``$VIRHEO_THREADS`` (default: all cores; use 1 per process when running several processes).
+Not thread-safe: one simulation at a time per process (batch evaluation uses processes).
 """
 import math
 import os
@@ -48,7 +55,7 @@ from taichi.lang import impl
 from mpm import scene as sc
 
 DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/performance.md
-CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6 is still stable, 0.8 blows up (docs/performance.md)
+CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6-0.65 still stable, 0.8 blows up (docs/performance.md)
 PARTICLES_PER_CELL = 1  # per axis (the reference uses 2; see docs/performance.md)
 GRID_SHIFT = 0.0  # grid nodes sit at (I + GRID_SHIFT) * dx
 SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame interval
@@ -499,9 +506,11 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
-    .height_mm (20-70 mm); density in kg/m^3; cell_mm: grid cell width (default ``DEFAULT_CELL_MM``), two
-    particles per cell per axis; camera: a ``mpm.camera.Camera`` to also render silhouettes at
-    image_size = (width, height). Raises ValueError for bad input, SimulationError when the run blows up.
+    .height_mm (20-70 mm); density in kg/m^3; cell_mm: grid cell width (default ``DEFAULT_CELL_MM``) with
+    ``PARTICLES_PER_CELL`` particles per cell per axis; depth_mm: distance between the side walls;
+    camera: a ``mpm.camera.Camera`` to also render silhouettes at image_size = (width, height);
+    precision: "f32" or "f64"; flow_rule: "paper" or "yue2015".
+    Raises ValueError for bad input, SimulationError when the run blows up.
     """
     eta, n, sigma_y = sc.check_material(material)
     size = _check_options(dim, flow_rule, precision, image_size)
