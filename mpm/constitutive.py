@@ -78,6 +78,7 @@ import taichi as ti
 
 FLOW_RULES = ("paper", "yue2015")
 NEWTON_ITERATIONS = 8
+NEWTON_TOL = 1e-6  # early exit of the Taichi solve once a Newton step in log(e) is below this
 SQRT2 = float(np.sqrt(2.0))
 SQRT2_3 = float(np.sqrt(2.0 / 3.0))
 
@@ -362,7 +363,10 @@ def _ti_solve_excess(e_trial, a, eta, n):
         wu = ti.exp(s - m)
         wv = ti.exp(v - m)
         g = m + ti.log(wu + wv) - log_t
-        s -= g * (wu + wv) / (wu + p * wv)
+        step = g * (wu + wv) / (wu + p * wv)
+        s -= step
+        if ti.abs(step) < NEWTON_TOL:  # quadratic convergence: the remaining error is ~step^2
+            break
     return ti.exp(s)
 
 
