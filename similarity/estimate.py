@@ -54,7 +54,7 @@ PRESETS = {
     # the paper's budget: 100 generations x 7 per stage, the reference's 1.26 mm cells
     "paper": Preset("paper", generations=100, cell_mm=1.26),
     # tuned for `virheo demo` on a 2-core CPU (see docs/performance.md)
-    "quick": Preset("quick", generations=20, cell_mm=7.0, sigma0=0.2),
+    "quick": Preset("quick", generations=15, cell_mm=7.0, sigma0=0.2),
 }
 
 
