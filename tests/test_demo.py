@@ -68,3 +68,20 @@ def test_estimate_refuses_malformed_folder_before_any_work(tmp_path, capsys, sha
     assert "not found" in capsys.readouterr().err
     assert main(["estimate", str(good), "--out", str(out), "--generations", "0"]) == 2
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_demo_real_solver_one_generation(tmp_path):
+    """The real `virheo demo` pipeline (MPM, camera, silhouettes, design) with one generation per stage."""
+    pytest.importorskip("mpm.solver")
+    out = tmp_path / "demo"
+    env = dict(os.environ, VIRHEO_THREADS="1")
+    proc = subprocess.run([sys.executable, "-m", "studies.cli", "demo", "--out", str(out), "--generations", "1",
+                           "--workers", "1", "--quiet"], env=env, capture_output=True, text=True, timeout=600,
+                          cwd=str(TESTS.parent))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads((out / "result.json").read_text())
+    assert result["simulations"] == 7 + 14 and len(result["setups"]) == 2
+    for e in result["experiments"]:  # the estimate's own simulation, re-read from the store, has the reported loss
+        assert 0 < e["loss"] < 0.2 and len(e["frame_losses"]) == 8
+    assert result["loss"] == pytest.approx(np.mean([e["loss"] for e in result["experiments"]]))
