@@ -22,7 +22,7 @@ import os
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
+from typing import Callable, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -86,32 +86,18 @@ def code_version(simulator: str) -> str:
 
 
 # -- the forward model (runs in the workers) -------------------------------------------------------
-class _Material:
-    """Plain (eta, n, sigma_y) record handed to the solver (mpm does not import similarity)."""
+class _Material(NamedTuple):
+    """Plain (eta, n, sigma_y) record for the solver (which reads ``.eta .n .sigma_y``; mpm does not
+    import similarity)."""
 
-    def __init__(self, eta, n, sigma_y):
-        self.eta, self.n, self.sigma_y = float(eta), float(n), float(sigma_y)
-
-    def as_array(self):
-        return np.array([self.eta, self.n, self.sigma_y])
-
-    def to_dict(self):
-        return {"eta": self.eta, "n": self.n, "sigma_y": self.sigma_y}
+    eta: float
+    n: float
+    sigma_y: float
 
 
-class _Setup:
-    def __init__(self, width_mm, height_mm):
-        self.width_mm, self.height_mm = float(width_mm), float(height_mm)
-        self.width_m, self.height_m = self.width_mm * 1e-3, self.height_mm * 1e-3
-
-
-def _material_and_setup(request: SimRequest):
-    try:  # the solver validates with the real value classes when they are importable
-        from similarity.space import Material, Setup  # noqa: PLC0415  (runtime only, no import-time dependency)
-
-        return Material(request.eta, request.n, request.sigma_y), Setup(request.width_mm, request.height_mm)
-    except ImportError:
-        return _Material(*request.material), _Setup(request.width_mm, request.height_mm)
+class _Setup(NamedTuple):
+    width_mm: float
+    height_mm: float
 
 
 def run_mpm(request: SimRequest) -> SimResult:
@@ -119,7 +105,7 @@ def run_mpm(request: SimRequest) -> SimResult:
     import mpm.solver as solver
     from mpm.camera import Camera
 
-    material, setup = _material_and_setup(request)
+    material, setup = _Material(*request.material), _Setup(request.width_mm, request.height_mm)
     camera = Camera.from_dict(json.loads(request.camera)) if request.camera else None
     sim = solver.simulate(
         material, setup, density=request.density, cell_mm=request.cell_mm, dim=request.dim,
