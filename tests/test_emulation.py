@@ -1,0 +1,41 @@
+"""Emulation study (section 7.1) on the fake forward model: equal simulation counts, reports."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from similarity.space import normalize
+from studies.emulation import poisson_materials
+
+TESTS = Path(__file__).resolve().parent
+
+
+def test_poisson_materials_are_spread_and_in_space():
+    mats = poisson_materials(6, seed=0)
+    x = np.array([normalize(m.as_array()) for m in mats])
+    assert len(mats) == 6 and all(m.in_space() for m in mats)
+    d = np.linalg.norm(x[:, None] - x[None], axis=-1)[np.triu_indices(6, 1)]
+    assert d.min() > 0.1  # Poisson-disk: no two materials close together
+    assert [m.to_dict() for m in poisson_materials(6, seed=0)] == [m.to_dict() for m in mats]
+
+
+def test_study_cli_one_vs_two_setups_at_equal_cost(tmp_path):
+    out = tmp_path / "emu"
+    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}")
+    proc = subprocess.run([sys.executable, "-m", "studies.cli", "study", "emulation", "--materials", "2", "--runs", "1",
+                           "--generations", "3", "--workers", "0", "--quiet", "--out", str(out),
+                           "--simulator", "fake_forward:simulate"], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads((out / "emulation.json").read_text())
+    assert result["summary"]["cases"] == 2
+    for case in result["cases"]:
+        assert case["single"]["simulations"] == 3 * 3 * 7
+        if len(case["setups"]) == 2:  # the design module proposed a second setup
+            assert case["two_setups"]["simulations"] == case["single"]["simulations"]
+        sims = [s for s, _ in case["curves"]["single"]]
+        assert sims == sorted(sims) and sims[-1] == case["single"]["simulations"]
+    assert (out / "errors_vs_simulations.png").stat().st_size > 1000
+    assert "Good (E_rel <= 0.1)" in (out / "emulation.md").read_text()
