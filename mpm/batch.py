@@ -173,6 +173,16 @@ def as_executor(executor) -> Executor:
     return executor
 
 
+def shutdown(executor) -> None:
+    """Shut an executor down, cancelling what has not started (dask's executor lacks ``cancel_futures``)."""
+    if executor is None or not hasattr(executor, "shutdown"):
+        return
+    try:
+        executor.shutdown(wait=True, cancel_futures=True)
+    except TypeError:
+        executor.shutdown(wait=True)
+
+
 def connect(scheduler: str):
     """A dask.distributed executor for ``--scheduler ADDRESS`` (tcp://host:port)."""
     from distributed import Client

@@ -365,8 +365,8 @@ def estimate(experiments, *, preset="quick", seed: int = 0, executor=None, store
             stages.append(stage)
             x0 = normalize(stage.material.as_array())
     finally:
-        if own and hasattr(ex, "shutdown"):
-            ex.shutdown(wait=True, cancel_futures=True)
+        if own:
+            batch.shutdown(ex)
     last = stages[-1]
     return Estimate(
         material=last.material, loss=last.loss, stages=stages,
@@ -403,8 +403,8 @@ def emulate_virheometry(truth: Material, first_setup: Setup, *, n_setups: int = 
         est = estimate([first], preset=preset, seed=seed, executor=ex, store=store, generations=generations,
                        simulator=simulator, progress=progress, n_setups=n_setups, acquire=acquire, propose=propose)
     finally:
-        if own and hasattr(ex, "shutdown"):
-            ex.shutdown(wait=True, cancel_futures=True)
+        if own:
+            batch.shutdown(ex)
     return est, filmed
 
 

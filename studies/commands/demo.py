@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
             frames = E.simulated_frames(est.material, filmed, preset="quick", store=store, executor=executor,
                                         simulator=simulator)
     finally:
-        executor.shutdown(wait=True, cancel_futures=True)
+        batch.shutdown(executor)
     wall = time.perf_counter() - t0
     result = write_estimate_report(out, est, filmed, frames=frames, truth=truth,
                                    extra={"wall_seconds": wall, "simulator": simulator})

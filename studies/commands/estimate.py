@@ -55,8 +55,7 @@ def run(args: argparse.Namespace) -> int:
                              generations=args.generations, progress=progress)
             frames = E.simulated_frames(est.material, experiments, preset=args.preset, store=store, executor=executor)
     finally:
-        if hasattr(executor, "shutdown"):
-            executor.shutdown(wait=True, cancel_futures=True)
+        batch.shutdown(executor)
     write_estimate_report(out, est, experiments, frames=frames,
                           extra={"folders": [str(Path(d).resolve()) for d in args.dirs]})
     m = est.material

@@ -48,8 +48,7 @@ def run_emulation(args: argparse.Namespace) -> int:
                                  generations=args.generations, seed=args.seed, store=store, executor=executor,
                                  progress=progress, simulator=args.simulator or batch.DEFAULT_SIMULATOR)
     finally:
-        if hasattr(executor, "shutdown"):
-            executor.shutdown(wait=True, cancel_futures=True)
+        batch.shutdown(executor)
     s = result["summary"]
     print((out / "emulation.md").read_text())
     print(f"good: one setup {s['good_single']}/{s['cases']}, two setups {s['good_two_setups']}/{s['cases']}; "
