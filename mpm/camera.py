@@ -128,7 +128,7 @@ class Camera:
 
     def project_with_depth(self, points_m, image_size=(960, 540)) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`project`, :meth:`depth`) in one pass."""
-        width, height = _size(image_size)
+        width, height = image_size_of(image_size)
         pc = self.to_camera(points_m)
         d = -pc[:, 2]
         f = self.focal_px(height)
@@ -138,7 +138,8 @@ class Camera:
         return uv, d
 
 
-def _size(image_size) -> tuple[int, int]:
+def image_size_of(image_size) -> tuple[int, int]:
+    """Validated (width, height) in pixels; one-line ValueError otherwise."""
     try:
         width, height = (int(v) for v in image_size)
     except (TypeError, ValueError):

@@ -22,7 +22,7 @@ from scipy.spatial import ConvexHull, QhullError
 from skimage.draw import polygon as fill_polygon
 from skimage.morphology import disk
 
-from mpm.camera import Camera
+from mpm.camera import Camera, image_size_of
 
 WORKING_SIZE = (960, 540)  # (width, height) at which the reference compares silhouettes
 REFERENCE_SPACING_M = 0.63e-3  # particle spacing of the reference simulations (cell 1.26 mm / 2)
@@ -45,16 +45,6 @@ def default_radius_m(spacing_m: float | None = None) -> float:
     if not spacing_m > 0:
         raise ValueError(f"particle spacing must be positive, got {spacing_m!r}")
     return max(REFERENCE_RADIUS_M, 0.75 * float(spacing_m))
-
-
-def _size(image_size) -> tuple[int, int]:
-    try:
-        width, height = (int(v) for v in image_size)
-    except (TypeError, ValueError):
-        raise ValueError(f"image_size must be (width, height), got {image_size!r}") from None
-    if width <= 0 or height <= 0:
-        raise ValueError(f"image_size must be positive, got {image_size!r}")
-    return width, height
 
 
 def _disk_offsets(r_max: float) -> tuple[np.ndarray, np.ndarray]:
@@ -84,7 +74,7 @@ def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float
     fills gaps between particles (default 1 pixel, or a quarter of the projected spacing if larger;
     0 disables it).
     """
-    width, height = _size(image_size)
+    width, height = image_size_of(image_size)
     mask = np.zeros((height, width), dtype=bool)
     p = np.asarray(positions_m, dtype=np.float64)
     if p.size == 0:
@@ -158,7 +148,7 @@ def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float
 def render_frames(frames, camera: Camera, image_size=WORKING_SIZE, radius_m: float | None = None, *,
                   spacing_m: float | None = None, closing_px: int | None = None) -> np.ndarray:
     """Stack (F, height, width) of :func:`render` for each particle array in ``frames``."""
-    width, height = _size(image_size)
+    width, height = image_size_of(image_size)
     out = [render(p, camera, (width, height), radius_m, spacing_m=spacing_m, closing_px=closing_px)
            for p in frames]
     return np.stack(out) if out else np.zeros((0, height, width), dtype=bool)
@@ -172,7 +162,7 @@ def box_corners(width_m: float, height_m: float, depth_m: float) -> np.ndarray:
 
 def polygon_mask(points_uv, image_size=WORKING_SIZE) -> np.ndarray:
     """Fill the convex hull of continuous pixel points (u, v): pixels whose centres lie inside."""
-    width, height = _size(image_size)
+    width, height = image_size_of(image_size)
     pts = np.asarray(points_uv, dtype=float)
     mask = np.zeros((height, width), dtype=bool)
     pts = pts[np.isfinite(pts).all(axis=1)]

@@ -492,13 +492,9 @@ def _check_options(dim, flow_rule, precision, image_size):
         raise ValueError(f"flow_rule must be one of {', '.join(FLOW_RULES)}, got {flow_rule!r}")
     if precision not in PRECISIONS:
         raise ValueError(f"precision must be f32 or f64, got {precision!r}")
-    try:
-        w, h = (int(s) for s in image_size)
-    except (TypeError, ValueError):
-        raise ValueError(f"image_size must be (width, height), got {image_size!r}") from None
-    if w <= 0 or h <= 0:
-        raise ValueError(f"image_size must be positive, got {image_size!r}")
-    return w, h
+    from mpm.camera import image_size_of
+
+    return image_size_of(image_size)
 
 
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,

@@ -11,22 +11,12 @@ from typing import Mapping
 
 import numpy as np
 
+from mpm.store import json_default
+
 SHEAR_RATES = np.logspace(-2, 4, 200)  # 1/s, the range of the paper's flow-curve plots (Fig. 10)
 
 # overlay colours (RGB): both, captured only, simulated only, background
 _BOTH, _CAPTURED, _SIMULATED, _BACKGROUND = (70, 70, 70), (40, 110, 230), (230, 60, 40), (255, 255, 255)
-
-
-def _default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    if hasattr(o, "to_dict"):
-        return o.to_dict()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def _clean(o):
@@ -44,7 +34,7 @@ def write_json(path, data: Mapping) -> Path:
     """Write ``data`` as indented JSON atomically (temp file + rename)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(_clean(json.loads(json.dumps(data, default=_default))), indent=2, allow_nan=False)
+    text = json.dumps(_clean(json.loads(json.dumps(data, default=json_default))), indent=2, allow_nan=False)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     with os.fdopen(fd, "w") as fh:
         fh.write(text + "\n")
