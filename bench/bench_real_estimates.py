@@ -35,6 +35,7 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--store", default=os.path.expanduser("~/.cache/virheometry/bench_real_estimates"))
     p.add_argument("--out", default="real_estimates.json")
+    p.add_argument("--only", nargs="*", default=None, help="material names (manifest spelling) to run")
     args = p.parse_args(argv)
     preset = dataclasses.replace(E.get_preset("quick"), name=f"real-{args.cell_mm}mm", cell_mm=args.cell_mm,
                                  generations=args.generations)
@@ -46,7 +47,7 @@ def main(argv=None) -> int:
     print(f"# uptime: {os.popen('uptime').read().strip()}; preset {preset}")
     with batch.local_executor(args.workers) as ex:
         for name, curve in curves.items():
-            if name in results:
+            if name in results or (args.only and name not in args.only):
                 continue
             mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
             exps = [xp.load(Path(real_world_dir()) / r["folder"]) for r in mine]
