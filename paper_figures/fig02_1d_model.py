@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.constitutive import integrate_1d, terminal_stress, transition_time
+from paper_figures._plot import finish_stress_grid
 
 STRAIN_RATE = 10.0
 MU = 1e3
@@ -35,17 +36,7 @@ def main(out: str = "docs/figures/fig02_1d_model.png") -> Path:
                    label="yield + t_inf (eq. 8)")
         ax.set_title(f"eta={eta:g}, n={n:g}, sigma_y={sy:g}", fontsize=9)
         ax.set_ylim(bottom=0)
-    for ax in axes[-1]:
-        ax.set_xlabel("t (s)")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("stress (Pa)")
-    axes.flat[0].legend(fontsize=7)
-    fig.tight_layout()
-    path = Path(out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return finish_stress_grid(fig, axes, out, "stress (Pa)")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ import numpy as np
 
 from mpm.constitutive import simple_shear, terminal_shear_stress, terminal_stress
 from paper_figures.fig02_1d_model import PANELS, STRAIN_RATE, T_END
+from paper_figures._plot import finish_stress_grid
 
 
 def main(out: str = "docs/figures/fig05_simple_shear.png") -> Path:
@@ -30,17 +31,7 @@ def main(out: str = "docs/figures/fig05_simple_shear.png") -> Path:
         ax.axhline(terminal_shear_stress(eta[i], n[i], sy[i], STRAIN_RATE, "yue2015"), ls=":", color="red", lw=0.8)
         ax.set_title(f"eta={eta[i]:g}, n={n[i]:g}, sigma_y={sy[i]:g}", fontsize=9)
         ax.set_ylim(bottom=0)
-    for ax in axes[-1]:
-        ax.set_xlabel("t (s)")
-    for ax in axes[:, 0]:
-        ax.set_ylabel("shear stress (Pa), eq. 14")
-    axes.flat[0].legend(fontsize=7)
-    fig.tight_layout()
-    path = Path(out)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return finish_stress_grid(fig, axes, out, "shear stress (Pa), eq. 14")
 
 
 if __name__ == "__main__":
