@@ -28,7 +28,7 @@ SIDE_WALL_M = 3.0e-3  # thickness of the side walls (spec 2.2: 0.3 cm)
 BACK_WALL_M = 1.0e-2  # thickness of the back wall and the floor (spec 2.2: 1 cm)
 WALL_TOP_M = 0.2  # walls are 20 cm tall
 SETUP_RANGE_MM = (20.0, 70.0)  # paper section 3.3
-PARTICLES_PER_CELL = 2  # per axis (spec 2.3: cell_samples_per_dim), the default of DamBreak.ppc
+REFERENCE_PARTICLES_PER_CELL = 2  # per axis, as the reference samples (spec 2.3: cell_samples_per_dim); the solver picks its own
 MAX_PARTICLES = 6_000_000  # refuse cell widths that would need more particles than this
 
 
@@ -80,14 +80,14 @@ class DamBreak:
     density: float
     cell_m: float
     dim: int = 3
-    ppc: int = PARTICLES_PER_CELL  # particles per cell per axis
+    ppc: int = REFERENCE_PARTICLES_PER_CELL  # particles per cell per axis
     kappa: float = KAPPA_PA
     mu: float = MU_PA
     gravity: float = GRAVITY
 
     @classmethod
     def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = 40.0, dim: int = 3,
-              ppc: int = PARTICLES_PER_CELL) -> "DamBreak":
+              ppc: int = REFERENCE_PARTICLES_PER_CELL) -> "DamBreak":
         w, h = check_setup(setup)
         density = float(density)
         if not (math.isfinite(density) and density > 0):
