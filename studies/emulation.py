@@ -16,6 +16,7 @@ import numpy as np
 
 from similarity import estimate as E
 from similarity.space import Material, Setup, SETUP_RANGE_MM, denormalize, e_rel
+from studies.report import save_figure
 
 GOOD = 0.1  # E_rel <= 0.1 counts as good enough (section 7.1)
 
@@ -150,16 +151,11 @@ def plot_errors(path, cases: list[Case]) -> Path:
     for ax in axes.ravel()[len(cases):]:
         ax.axis("off")
     axes.ravel()[0].legend(fontsize=7)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def write(out, cases: list[Case], *, settings: dict, wall_seconds: float) -> dict:
-    from studies.report import write_json
+    from studies.report import write_json  # noqa: E402 (kept local: only the study writes JSON here)
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
