@@ -16,7 +16,7 @@ import numpy as np
 
 from similarity import estimate as E
 from similarity.space import Material, Setup, SETUP_RANGE_MM, denormalize, e_rel
-from studies.report import save_figure
+from studies.report import save_figure, write_json
 
 GOOD = 0.1  # E_rel <= 0.1 counts as good enough (section 7.1)
 
@@ -155,8 +155,6 @@ def plot_errors(path, cases: list[Case]) -> Path:
 
 
 def write(out, cases: list[Case], *, settings: dict, wall_seconds: float) -> dict:
-    from studies.report import write_json  # noqa: E402 (kept local: only the study writes JSON here)
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     result = {"settings": settings, "summary": summary(cases), "wall_seconds": wall_seconds,
