@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -31,10 +32,25 @@ def check_args(args) -> None:
         raise ValueError(f"--workers {args.workers} must be >= 0")
 
 
-def run(args: argparse.Namespace) -> int:
+@contextmanager
+def run_context(args):
+    """(out folder, store, executor) of a long run: ``--out``, ``--store`` (default OUT/store), and
+    ``--scheduler`` (dask) or ``--workers`` local processes; the executor is shut down afterwards."""
     from mpm import batch
-    from mpm.experiment import load
     from mpm.store import Store
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    store = Store(args.store or out / "store")
+    executor = batch.connect(args.scheduler) if args.scheduler else batch.local_executor(args.workers)
+    try:
+        yield out, store, executor
+    finally:
+        batch.shutdown(executor)
+
+
+def run(args: argparse.Namespace) -> int:
+    from mpm.experiment import load
     from similarity import estimate as E
     from studies.report import progress_bars, write_estimate_report
 
@@ -45,17 +61,10 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"{e.name}: expected 8 frames config_01..08.png, found {len(e.frames)}")
         for w in e.warnings:
             sys.stderr.write(f"virheo estimate: warning: {e.name}: {w}\n")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    store = Store(args.store or out / "store")
-    executor = batch.connect(args.scheduler) if args.scheduler else batch.local_executor(args.workers)
-    try:
-        with progress_bars(not args.quiet) as progress:
-            est = E.estimate(experiments, preset=args.preset, seed=args.seed, executor=executor, store=store,
-                             generations=args.generations, progress=progress)
-            frames = E.simulated_frames(est.material, experiments, preset=args.preset, store=store, executor=executor)
-    finally:
-        batch.shutdown(executor)
+    with run_context(args) as (out, store, executor), progress_bars(not args.quiet) as progress:
+        est = E.estimate(experiments, preset=args.preset, seed=args.seed, executor=executor, store=store,
+                         generations=args.generations, progress=progress)
+        frames = E.simulated_frames(est.material, experiments, preset=args.preset, store=store, executor=executor)
     write_estimate_report(out, est, experiments, frames=frames,
                           extra={"folders": [str(Path(d).resolve()) for d in args.dirs]})
     m = est.material

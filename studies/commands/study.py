@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 
 def register(subparsers) -> None:
@@ -29,26 +28,18 @@ def register(subparsers) -> None:
 
 def run_emulation(args: argparse.Namespace) -> int:
     from mpm import batch
-    from mpm.store import Store
+    from studies.commands.estimate import check_args, run_context
     from studies.emulation import timed_study
     from studies.report import progress_bars
 
     for name in ("materials", "runs"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name} {getattr(args, name)} must be >= 1")
-    if args.generations is not None and args.generations < 1:
-        raise ValueError(f"--generations {args.generations} must be >= 1")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    store = Store(args.store or out / "store")
-    executor = batch.connect(args.scheduler) if args.scheduler else batch.local_executor(args.workers)
-    try:
-        with progress_bars(not args.quiet) as progress:
-            result = timed_study(out, materials=args.materials, runs=args.runs, preset=args.preset,
-                                 generations=args.generations, seed=args.seed, store=store, executor=executor,
-                                 progress=progress, simulator=args.simulator or batch.DEFAULT_SIMULATOR)
-    finally:
-        batch.shutdown(executor)
+    check_args(args)
+    with run_context(args) as (out, store, executor), progress_bars(not args.quiet) as progress:
+        result = timed_study(out, materials=args.materials, runs=args.runs, preset=args.preset,
+                             generations=args.generations, seed=args.seed, store=store, executor=executor,
+                             progress=progress, simulator=args.simulator or batch.DEFAULT_SIMULATOR)
     s = result["summary"]
     print((out / "emulation.md").read_text())
     print(f"good: one setup {s['good_single']}/{s['cases']}, two setups {s['good_two_setups']}/{s['cases']}; "
