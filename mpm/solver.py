@@ -57,7 +57,7 @@ from mpm import scene as sc
 DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/performance.md
 CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6-0.65 still stable, 0.8 blows up (docs/performance.md)
 PARTICLES_PER_CELL = 1  # per axis (the reference uses 2; see docs/performance.md)
-GRID_SHIFT = 0.0  # grid nodes sit at (I + GRID_SHIFT) * dx
+GRID_SHIFT = (0.0, 0.0, 0.0)  # per axis: grid nodes sit at (I + GRID_SHIFT) * dx
 SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame interval
 FLOW_RULES = ("paper", "yue2015")
 PRECISIONS = ("f32", "f64")
@@ -218,7 +218,7 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
     @ti.func
     def window(win: ti.template(), shift):
         """Origin (in cells: node (0,..) of the window sits at origin * dx) and flat-index strides."""
-        origin = ti.Vector([win[_OX + a] + shift for a in ti.static(range(D))])
+        origin = ti.Vector([win[_OX + a] + shift[a] for a in ti.static(range(D))])
         stride = ti.Vector.one(ti.i32, D)
         for a in ti.static(range(D - 2, -1, -1)):
             stride[a] = stride[a + 1] * win[_NX + a + 1]
@@ -342,7 +342,8 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
     @ti.kernel
     def step(x: nd, v: nd, C: nd, be: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd, boxes: nd,
              lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float, kappa: float,
-             mu: float, eta: float, nn: float, sy: float, gravity: float, zmid: float, shift: float,
+             mu: float, eta: float, nn: float, sy: float, gravity: float, zmid: float,
+             shift: ti.types.vector(D, float),
              lh: float, yue: ti.template()):
         inv_dx = 1.0 / dx
         # 1. clear the previous window in every grid copy
@@ -404,7 +405,7 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
                 for a in ti.static(range(D - 1, -1, -1)):
                     local[a] = rest % win[_NX + a]
                     rest = rest // win[_NX + a]
-                pos = ti.Vector([(local[a] + win[_OX + a] + shift) * dx for a in ti.static(range(D))])
+                pos = ti.Vector([(local[a] + win[_OX + a] + shift[a]) * dx for a in ti.static(range(D))])
                 mom = ti.Vector([g[a] for a in ti.static(range(D))])
                 mom[1] -= dt * m * gravity
                 z = zcoord(pos, zmid)
@@ -459,7 +460,8 @@ def _build_kernels(dim: int, tasks: int, atomic: bool):
                 win[_DONE] += 1
 
     @ti.kernel
-    def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, shift: float, lh: float):
+    def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, shift: ti.types.vector(D, float),
+                  lh: float):
         for t in range(tasks):
             lo = ti.Vector([2147483647] * D)
             hi = ti.Vector([-2147483647] * D)
@@ -498,14 +500,15 @@ def _check_options(dim, flow_rule, precision, image_size):
 
 
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
-             depth_mm=40.0, image_size=(960, 540), precision="f32") -> Simulation:
+             depth_mm=40.0, image_size=(960, 540), precision="f32", progress=None) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
     .height_mm (20-70 mm); density in kg/m^3; cell_mm: grid cell width (default ``DEFAULT_CELL_MM``) with
     ``PARTICLES_PER_CELL`` particles per cell per axis; depth_mm: distance between the side walls;
     camera: a ``mpm.camera.Camera`` to also render silhouettes at image_size = (width, height);
-    precision: "f32" or "f64"; flow_rule: "paper" or "yue2015".
+    precision: "f32" or "f64"; flow_rule: "paper" or "yue2015"; progress: optional callable
+    ``progress(frames_done, 8)`` called after each simulated frame.
     Raises ValueError for bad input, SimulationError when the run blows up.
     """
     eta, n, sigma_y = sc.check_material(material)
@@ -516,7 +519,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     eng = _engine(dim, precision)
     t_ready = time.perf_counter()
     run = _Run(eng, scene, eta, n, sigma_y, flow_rule == "yue2015")
-    frames3, front, stats = run.execute()
+    frames3, front, stats = run.execute(progress)
     t_sim = time.perf_counter()
     silhouettes = None
     if camera is not None:
@@ -532,6 +535,10 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)
     return Simulation(sc.frame_times(), frames3, silhouettes, front, stats)
+
+
+def _shift(dim: int):
+    return ti.Vector([float(v) for v in GRID_SHIFT[:dim]])
 
 
 class _Run:
@@ -564,7 +571,7 @@ class _Run:
         eng.lim.from_numpy(lim)
         win = np.zeros(16, np.int32)
         eng.win.from_numpy(win)
-        eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m, GRID_SHIFT, scene.half_length_m / scene.cell_m)
+        eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m, _shift(scene.dim), scene.half_length_m / scene.cell_m)
         first = eng.acc.to_numpy()
         span = first[:, 3:3 + d].max(0) + 3 - first[:, :d].min(0)
         eng.ensure_grid(int(np.prod(span)) * 2)
@@ -575,7 +582,7 @@ class _Run:
         for _ in range(steps):
             eng.step(eng.x, eng.v, eng.C, eng.be, eng.flags, eng.grid, eng.win, eng.acc, eng.accf, eng.boxes,
                      eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass, s.particle_volume, s.kappa,
-                     s.mu, self.eta, self.n, self.sigma_y, s.gravity, s.plane_z_m, GRID_SHIFT,
+                     s.mu, self.eta, self.n, self.sigma_y, s.gravity, s.plane_z_m, _shift(s.dim),
                      s.half_length_m / s.cell_m, self.yue)
 
     def _advance(self, steps: int, dt: float) -> None:
@@ -596,7 +603,7 @@ class _Run:
                 eng.win.from_numpy(win)
             todo = target - int(win[_DONE])
 
-    def execute(self):
+    def execute(self, progress=None):
         eng, scene = self.eng, self.scene
         c = scene.wave_speed
         t = 0.0
@@ -630,6 +637,8 @@ class _Run:
             mean_j.append(jm)
             eng.grid_mass(eng.grid, eng.win, eng.out)
             mass_err.append(abs(float(eng.out.to_numpy()[0]) - m_total) / m_total)
+            if progress is not None:
+                progress(k + 1, sc.N_FRAMES)
         flags = eng.flags.to_numpy()[: self.count]
         stats = dict(
             n_particles=self.count, steps=steps, dt_min=float(min(dts)), dt_max=float(max(dts)), max_speed=float(vmax_seen),

@@ -34,6 +34,7 @@ from similarity.space import Material, Setup, center, denormalize, e_rel, normal
 POPSIZE = 7  # = 4 + floor(3 ln 3) for 3 parameters (REFERENCE_SPEC 4.2)
 RESAMPLE = 3  # rounds of resampling NaN candidates within one generation
 PAPER_SIGMA0 = 0.1  # Sigma = 1.0 in the reference's [0, 10]^3 box
+WARM_START_SPACING = 0.03  # minimum distance in [0, 1]^3 between re-scored candidates of the previous stage
 
 
 @dataclass(frozen=True)
@@ -149,10 +150,13 @@ class Stage:
     history: list[dict] = field(default_factory=list)  # per generation: simulations, best loss, best x
     next_setup: str | None = None
     wall_seconds: float = 0.0
+    archive: list[list[float]] = field(default_factory=list)  # every finite evaluation: [x0, x1, x2, loss]
+    screened: list[list[float]] = field(default_factory=list)  # warm start: [x0, x1, x2, loss on these setups]
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["material"] = self.material.to_dict()
+        d.pop("archive")  # hundreds of rows; the history keeps the path
         return d
 
 
@@ -252,7 +256,7 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             warnings.simplefilter("ignore")
             es = cma.CMAEvolutionStrategy(list(map(float, x0)), float(sigma0), _cma_options(generations, preset.popsize, seed))
         state = {"es": es, "generation": 0, "history": [], "best_x": None, "best_loss": np.inf,
-                 "evaluations": 0, "simulations": 0, "wall_seconds": 0.0, "stage": None}
+                 "evaluations": 0, "simulations": 0, "wall_seconds": 0.0, "stage": None, "archive": []}
     es = state["es"]
     setups = [str(setup_of(e)) for e in experiments]
     if progress:
@@ -271,6 +275,8 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             F[bad] = objective([X[i] for i in bad])
             evaluations += bad.size
         finite = np.isfinite(F)
+        state.setdefault("archive", []).extend(
+            [float(v) for v in np.clip(x, 0.0, 1.0)] + [float(f)] for x, f in zip(X, F) if np.isfinite(f))
         if finite.any():
             i = int(np.nanargmin(np.where(finite, F, np.inf)))
             if F[i] < state["best_loss"]:
@@ -303,10 +309,39 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
         material=Material.from_array(denormalize(np.clip(state["best_x"], 0, 1))), loss=state["best_loss"],
         evaluations=state["evaluations"], simulations=state["simulations"], generations=state["generation"],
         history=state["history"], wall_seconds=state["wall_seconds"] + time.perf_counter() - t0,
+        archive=state.get("archive", []),
     )
     state["stage"] = stage
     store.save_checkpoint(run_id, state)
     return stage
+
+
+def warm_start(previous: Stage, experiments, *, preset: Preset, store: Store, executor=None,
+               simulator: str = batch.DEFAULT_SIMULATOR, count: int | None = None,
+               min_distance: float = WARM_START_SPACING) -> tuple[np.ndarray, list[list[float]]]:
+    """Start of stage k: the previous stage's valley re-scored with the new setup (section 6).
+
+    A setup's loss valley is long and flat (section 5): many candidates of stage k-1 fit its setups
+    almost equally well, and the best of them need not be the one nearest the truth.  The new setup's
+    valley crosses that one, so we take the ``count`` best distinct candidates of the previous stage
+    (the previous estimate first, then the best at least ``min_distance`` apart in [0, 1]^3, topped up
+    with the next best), evaluate all k setups on them (the old setups come from the store) and start
+    from the best.  Costs one generation of the new setup.  Returns (x0, [[x, loss], ...]).
+    """
+    count = int(count or preset.popsize)
+    rows = sorted(previous.archive, key=lambda r: r[3])
+    picked: list[np.ndarray] = [normalize(previous.material.as_array())]
+    for spacing in (min_distance, 1e-9):  # spread out first; fill up with the next best if the valley is small
+        for r in rows:
+            x = np.asarray(r[:3], float)
+            if len(picked) < count and min(np.linalg.norm(x - q) for q in picked) >= spacing:
+                picked.append(x)
+    objective = _Objective(experiments, preset, simulator, store, executor, None)
+    F = objective(picked)
+    if not np.isfinite(F).any():
+        return picked[0], []
+    best = int(np.nanargmin(np.where(np.isfinite(F), F, np.inf)))
+    return picked[best], [[float(v) for v in x] + [float(f)] for x, f in zip(picked, F)]
 
 
 def _stopped(es) -> bool:
@@ -356,9 +391,20 @@ def estimate(experiments, *, preset="quick", seed: int = 0, executor=None, store
                     break
                 experiments.append(acquire(Setup.parse(proposed)))
             sigma0 = preset.sigma0 * (2.0 / 3.0) ** (k - 1)
+            screened = []
+            if stages:
+                x0, screened = warm_start(stages[-1], experiments[:k], preset=preset, store=store, executor=ex,
+                                          simulator=simulator)
             stage = run_stage(experiments[:k], x0=x0, sigma0=sigma0, preset=preset, seed=seed + k - 1,
                               generations=generations, store=store, executor=ex, simulator=simulator,
                               progress=progress, stage_index=k)
+            stage.screened = screened
+            if screened:  # a re-scored candidate of the previous stage may beat everything the stage sampled
+                top = min(screened, key=lambda r: r[3])
+                if top[3] < stage.loss:
+                    stage.material, stage.loss = Material.from_array(denormalize(np.asarray(top[:3]))), top[3]
+            stage.evaluations += len(screened)
+            stage.simulations += len(screened)  # the earlier setups' runs of these come from the store
             done = [setup_of(e) for e in experiments[:k]]
             nxt = propose(stage.material, done) if propose else None
             stage.next_setup = None if nxt is None else str(Setup(nxt.width_mm, nxt.height_mm))

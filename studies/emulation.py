@@ -2,8 +2,9 @@
 
 Materials are drawn by Poisson-disk sampling in the normalised material space; each is estimated
 several times from random first setups.  A two-setup run is Algorithm 1 with N = 2 (G generations
-on setup 1, then G generations on setups 1 + 2, i.e. 7G + 14G simulations); the matching one-setup
-run continues CMA-ES on setup 1 alone for 3G generations (21G simulations), as in the paper.  Both
+on setup 1, then 7 stage-1 candidates re-scored on setup 2 and G generations on setups 1 + 2, i.e.
+7G + 7 + 14G simulations); the matching one-setup run continues CMA-ES on setup 1 alone for 3G + 1
+generations (21G + 7 simulations), as in the paper.  Both
 share their first G generations (same seed, same start), which the store serves once.
 """
 from __future__ import annotations
@@ -56,7 +57,8 @@ class Case:
         """E_rel vs simulation count: single setup, and the two stages of the two-setup run."""
         single = E.e_rel_history(self.single.stages[0], self.truth)
         first = E.e_rel_history(self.double.stages[0], self.truth)
-        offset = self.double.stages[0].simulations
+        offset = self.double.stages[0].simulations + len(self.double.stages[1].screened) \
+            if len(self.double.stages) > 1 else 0
         second = [(s + offset, v) for s, v in E.e_rel_history(self.double.stages[1], self.truth)] \
             if len(self.double.stages) > 1 else []
         return {"single": single, "first": first, "second": second}
@@ -91,7 +93,7 @@ def run_study(*, materials: int = 6, runs: int = 3, preset="quick", generations:
                                                    density=density, store=store, executor=executor, generations=g,
                                                    simulator=simulator, progress=progress)
             single = E.estimate(filmed[:1], preset=preset, seed=run_seed, executor=executor, store=store,
-                                generations=3 * g, simulator=simulator, progress=progress, propose=None)
+                                generations=3 * g + 1, simulator=simulator, progress=progress, propose=None)
             cases.append(Case(i, run, truth, first, single, double))
     return cases
 

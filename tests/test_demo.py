@@ -81,7 +81,8 @@ def test_demo_real_solver_one_generation(tmp_path):
                           cwd=str(TESTS.parent))
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((out / "result.json").read_text())
-    assert result["simulations"] == 7 + 14 and len(result["setups"]) == 2
+    # 7 + 14 CMA-ES simulations plus the re-scoring of up to 7 stage-1 candidates on setup 2
+    assert 7 + 14 < result["simulations"] <= 7 + 14 + 7 and len(result["setups"]) == 2
     for e in result["experiments"]:  # the estimate's own simulation, re-read from the store, has the reported loss
         assert 0 < e["loss"] < 0.2 and len(e["frame_losses"]) == 8
     assert result["loss"] == pytest.approx(np.mean([e["loss"] for e in result["experiments"]]))

@@ -32,7 +32,7 @@ def test_study_cli_one_vs_two_setups_at_equal_cost(tmp_path):
     result = json.loads((out / "emulation.json").read_text())
     assert result["summary"]["cases"] == 2
     for case in result["cases"]:
-        assert case["single"]["simulations"] == 3 * 3 * 7
+        assert case["single"]["simulations"] == (3 * 3 + 1) * 7  # 3G + 1 generations: the re-scoring costs one
         if len(case["setups"]) == 2:  # the design module proposed a second setup
             assert case["two_setups"]["simulations"] == case["single"]["simulations"]
         sims = [s for s, _ in case["curves"]["single"]]

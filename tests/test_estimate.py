@@ -39,17 +39,24 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
         runs.append((E.estimate(exps, seed=7, workers=0, store=store, simulator=SIM, generations=12, propose=_fixed), store))
     (a, store_a), (b, _) = runs
     assert a.material == b.material and a.loss == b.loss
-    assert [s.evaluations for s in a.stages] == [12 * 7, 12 * 7]  # no NaN here: no resampling
-    assert a.simulations == 12 * 7 * 1 + 12 * 7 * 2
+    screened = a.stages[1].screened
+    assert 2 <= len(screened) <= 7  # stage 2 starts by re-scoring stage 1's best distinct candidates
+    assert [s.evaluations for s in a.stages] == [12 * 7, 12 * 7 + len(screened)]  # no NaN: no resampling
+    assert a.simulations == 12 * 7 * 1 + 12 * 7 * 2 + len(screened)
+    # the previous estimate is among them, and the others are the best of stage 1's archive, spread out
+    assert screened[0][:3] == pytest.approx(list(E.normalize(a.stages[0].material.as_array())))
+    xs = np.array([r[:3] for r in screened])
+    assert min(np.linalg.norm(p - q) for i, p in enumerate(xs) for q in xs[:i]) >= E.WARM_START_SPACING
+    # ... and stage 2 starts from the one that fits both setups best
+    assert a.stages[1].x0 == pytest.approx(min(screened, key=lambda r: r[3])[:3])
     # the returned candidate is the best evaluated one of the final stage, recomputed from the store
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
     best = min(
         np.mean([store_a.get_loss(E._request(Material.from_array(denormalize(h)), e, E.get_preset("quick"), SIM), eid)
                  for e, eid in zip(exps, eids)])
-        for h in (gen["best_x"] for gen in a.stages[1].history)
+        for h in [gen["best_x"] for gen in a.stages[1].history] + [r[:3] for r in screened]
     )
     assert a.loss == pytest.approx(best)
-    assert a.stages[1].x0 == pytest.approx(list(E.normalize(a.stages[0].material.as_array())))
     assert a.stages[1].sigma0 == pytest.approx(a.stages[0].sigma0 * 2 / 3)
     assert a.next_setup == Setup(60, 25)
     # stage losses never increase along a stage's history; two setups pin the fake model down

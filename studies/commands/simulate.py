@@ -74,7 +74,7 @@ def run(args) -> int:
             bar.update(task, completed=frame, total=total)
 
         sim = mpm.simulate(material, setup, density=density, cell_mm=args.cell_mm, dim=args.dim,
-                           flow_rule=args.flow_rule, camera=camera, depth_mm=depth_mm, **_progress_kw(progress))
+                           flow_rule=args.flow_rule, camera=camera, depth_mm=depth_mm, progress=progress)
         bar.update(task, completed=8)
     wall = time.perf_counter() - t0
 
@@ -99,14 +99,6 @@ def run(args) -> int:
     print(f"runout after 1/3 s: {1e3 * sim.front_m[-1]:.1f} mm; {sim.stats.get('n_particles')} particles, "
           f"{sim.stats.get('steps')} steps, {wall:.1f} s; written to {out}/")
     return 0
-
-
-def _progress_kw(progress) -> dict:
-    import inspect
-
-    from mpm import solver
-
-    return {"progress": progress} if "progress" in inspect.signature(solver.simulate).parameters else {}
 
 
 def _gif(simulated: np.ndarray, captured, path: Path) -> None:
