@@ -1,7 +1,8 @@
 """Real footage at the paper's Table-1 parameters versus the material-space centre and one-at-a-time
 perturbations (issue 3 acceptance), plus every shared experiment's loss at Table 1.
 
-    python bench/bench_real_footage.py [--cell-mm X] [--workers K] [--store PATH] [--materials NAME ...]
+    python bench/bench_real_footage.py [--cell-mm X] [--ppc P] [--workers K] [--store PATH] [--materials NAME ...]
+                                       [--perturbations LABEL ...]
 
 For each material of manifest.csv: loss summed over its two setups at Table 1, at the centre of the material
 space, and with eta x3, x1/3, sigma_y x2, x1/2 (+-5 Pa where sigma_y < 5 Pa). Prints markdown tables
@@ -36,6 +37,9 @@ def perturbations(m: Material) -> dict[str, Material]:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--cell-mm", type=float, default=None)
+    p.add_argument("--ppc", type=int, default=None, help="particles per cell per axis (paper: --cell-mm 1.26 --ppc 2)")
+    p.add_argument("--perturbations", nargs="*", default=None,
+                   help="only these columns besides Table 1, e.g. 'sigma_y down' (default: all)")
     p.add_argument("--workers", type=int, default=0)
     p.add_argument("--store", default=os.path.expanduser("~/.cache/virheometry/bench_real_footage"))
     p.add_argument("--materials", nargs="*", default=None)
@@ -46,7 +50,8 @@ def main(argv=None) -> int:
         by_material.setdefault(r["material"], []).append(r)
     names = args.materials or list(by_material)
     store = Store(args.store)
-    print(f"# uptime: {os.popen('uptime').read().strip()}; cell_mm={args.cell_mm or 'default'}")
+    print(f"# uptime: {os.popen('uptime').read().strip()}; cell_mm={args.cell_mm or 'default'}, "
+          f"ppc={args.ppc or 'default'}")
     t0 = time.perf_counter()
     jobs, keys = [], []
     exps = {}
@@ -56,8 +61,10 @@ def main(argv=None) -> int:
             exps[r["folder"]] = e
             table1 = Material(float(r["paper_eta_Pa_s_n"]), float(r["paper_n"]), float(r["paper_sigma_y_Pa"]))
             for label, m in perturbations(table1).items():
+                if args.perturbations is not None and label != "Table 1" and label not in args.perturbations:
+                    continue
                 req = batch.request_for(m, e, density=e.density, depth_mm=e.depth_mm, camera=e.camera,
-                                        cell_mm=args.cell_mm)
+                                        cell_mm=args.cell_mm, ppc=args.ppc)
                 jobs.append((req, batch.experiment_id(e.frames, e.name), e.frames))
                 keys.append((name, r["folder"], label))
     with (batch.local_executor(args.workers) if args.workers else batch.local_executor(0)) as ex:
@@ -70,7 +77,8 @@ def main(argv=None) -> int:
         table[name][label] += loss
         if label == "Table 1":
             per_exp[folder] = loss
-    labels = list(perturbations(Material(1, 1, 1)))
+    labels = [lab for lab in perturbations(Material(1, 1, 1))
+              if args.perturbations is None or lab == "Table 1" or lab in args.perturbations]
     print("\n| material | " + " | ".join(labels) + " | Table 1 lowest |")
     print("|---" * (len(labels) + 2) + "|")
     ok_all = True

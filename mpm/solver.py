@@ -500,12 +500,13 @@ def _check_options(dim, flow_rule, precision, image_size):
 
 
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
-             depth_mm=40.0, image_size=(960, 540), precision="f32", progress=None) -> Simulation:
+             depth_mm=40.0, image_size=(960, 540), precision="f32", ppc=None, progress=None) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
-    .height_mm (20-70 mm); density in kg/m^3; cell_mm: grid cell width (default ``DEFAULT_CELL_MM``) with
-    ``PARTICLES_PER_CELL`` particles per cell per axis; depth_mm: distance between the side walls;
+    .height_mm (20-70 mm); density in kg/m^3; cell_mm: grid cell width (default ``DEFAULT_CELL_MM``);
+    ppc: particles per cell per axis (default ``PARTICLES_PER_CELL``; the paper's discretisation is
+    cell_mm=1.26, ppc=2); depth_mm: distance between the side walls;
     camera: a ``mpm.camera.Camera`` to also render silhouettes at image_size = (width, height);
     precision: "f32" or "f64"; flow_rule: "paper" or "yue2015"; progress: optional callable
     ``progress(frames_done, 8)`` called after each simulated frame.
@@ -514,7 +515,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     eta, n, sigma_y = sc.check_material(material)
     size = _check_options(dim, flow_rule, precision, image_size)
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
-                              depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL)
+                              depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc)
     t_start, cpu_start = time.perf_counter(), time.process_time()
     eng = _engine(dim, precision)
     t_ready = time.perf_counter()

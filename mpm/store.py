@@ -93,6 +93,7 @@ class SimRequest:
     depth_mm: float = 40.0
     camera: str | None = None
     cell_mm: float | None = None
+    ppc: int | None = None
     dim: int = 3
     flow_rule: str = "paper"
     precision: str = "f32"

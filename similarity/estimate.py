@@ -44,6 +44,7 @@ class Preset:
     name: str
     generations: int  # CMA-ES generations per stage (paper: 100)
     cell_mm: float | None  # MPM cell width (None: solver default)
+    ppc: int | None = None  # particles per cell per axis (None: solver default)
     dim: int = 3
     sigma0: float = PAPER_SIGMA0  # stage-1 step size in [0, 1]^3; stage k uses sigma0 * (2/3)^(k-1)
     flow_rule: str = "paper"
@@ -52,8 +53,9 @@ class Preset:
 
 
 PRESETS = {
-    # the paper's budget: 100 generations x 7 per stage, the reference's 1.26 mm cells
-    "paper": Preset("paper", generations=100, cell_mm=1.26),
+    # the paper's budget and discretisation: 100 generations x 7 per stage, 1.26 mm cells, 2 particles
+    # per cell per axis (REFERENCE_SPEC 2.1, 2.3)
+    "paper": Preset("paper", generations=100, cell_mm=1.26, ppc=2),
     # tuned for `virheo demo` on a 2-core CPU (see docs/performance.md)
     "quick": Preset("quick", generations=15, cell_mm=7.0, sigma0=0.2),
 }
@@ -102,7 +104,7 @@ def _image_size(experiment) -> tuple[int, int]:
 def _request(material, experiment, preset: Preset, simulator: str, image_size=None):
     return batch.request_for(
         material, setup_of(experiment), density=float(experiment.density), depth_mm=float(experiment.depth_mm),
-        camera=experiment.camera, cell_mm=preset.cell_mm, dim=preset.dim, flow_rule=preset.flow_rule,
+        camera=experiment.camera, cell_mm=preset.cell_mm, ppc=preset.ppc, dim=preset.dim, flow_rule=preset.flow_rule,
         precision=preset.precision, image_size=image_size or _image_size(experiment), simulator=simulator,
     )
 

@@ -25,6 +25,8 @@ def register(sub) -> None:
     p.add_argument("--depth-mm", type=float, default=None, help="box depth in mm (default 40, or the experiment's)")
     p.add_argument("--dim", type=int, choices=(2, 3), default=3, help="3D or 2D plane strain (default 3)")
     p.add_argument("--cell-mm", type=float, default=None, help="grid cell width in mm (default: the solver's)")
+    p.add_argument("--ppc", type=int, default=None,
+                   help="particles per cell per axis, 1-4 (default: the solver's; the paper: --cell-mm 1.26 --ppc 2)")
     p.add_argument("--flow-rule", choices=("paper", "yue2015"), default="paper")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run)
@@ -73,7 +75,7 @@ def run(args) -> int:
         def progress(frame: int, total: int) -> None:
             bar.update(task, completed=frame, total=total)
 
-        sim = mpm.simulate(material, setup, density=density, cell_mm=args.cell_mm, dim=args.dim,
+        sim = mpm.simulate(material, setup, density=density, cell_mm=args.cell_mm, ppc=args.ppc, dim=args.dim,
                            flow_rule=args.flow_rule, camera=camera, depth_mm=depth_mm, progress=progress)
         bar.update(task, completed=8)
     wall = time.perf_counter() - t0
