@@ -23,6 +23,7 @@ def test_key_is_stable_and_sensitive_to_every_field():
     assert SimRequest.from_dict(r.to_dict()).key == r.key
     for change in (dict(eta=1.5000001), dict(n=0.71), dict(sigma_y=10.5), dict(width_mm=31.0), dict(height_mm=41.0),
                    dict(density=1000.0), dict(depth_mm=41.5), dict(camera='{"fov_deg":36.1}'), dict(cell_mm=2.5),
+                   dict(ppc=2),
                    dict(dim=2), dict(flow_rule="yue"), dict(precision="f64"), dict(image_size=(480, 270)),
                    dict(simulator="x:y"), dict(code_version="v2")):
         assert _req(**change).key != r.key, change
