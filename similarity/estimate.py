@@ -331,7 +331,7 @@ def warm_start(previous: Stage, experiments, *, preset: Preset, store: Store, ex
     from the best.  Costs one generation of the new setup.  Returns (x0, [[x, loss], ...]).
     """
     count = int(count or preset.popsize)
-    rows = sorted(previous.archive, key=lambda r: r[3])
+    rows = sorted(getattr(previous, "archive", []), key=lambda r: r[3])  # stages pickled before it existed: none
     picked: list[np.ndarray] = [normalize(previous.material.as_array())]
     for spacing in (min_distance, 1e-9):  # spread out first; fill up with the next best if the valley is small
         for r in rows:
