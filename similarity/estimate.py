@@ -320,7 +320,8 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
 
 def warm_start(previous: Stage, experiments, *, preset: Preset, store: Store, executor=None,
                simulator: str = batch.DEFAULT_SIMULATOR, count: int | None = None,
-               min_distance: float = WARM_START_SPACING) -> tuple[np.ndarray, list[list[float]]]:
+               min_distance: float = WARM_START_SPACING,
+               progress: Callable[[dict], None] | None = None) -> tuple[np.ndarray, list[list[float]]]:
     """Start of stage k: the previous stage's valley re-scored with the new setup (section 6).
 
     A setup's loss valley is long and flat (section 5): many candidates of stage k-1 fit its setups
@@ -338,7 +339,7 @@ def warm_start(previous: Stage, experiments, *, preset: Preset, store: Store, ex
             x = np.asarray(r[:3], float)
             if len(picked) < count and min(np.linalg.norm(x - q) for q in picked) >= spacing:
                 picked.append(x)
-    objective = _Objective(experiments, preset, simulator, store, executor, None)
+    objective = _Objective(experiments, preset, simulator, store, executor, progress)
     F = objective(picked)
     if not np.isfinite(F).any():
         return picked[0], []
@@ -396,7 +397,7 @@ def estimate(experiments, *, preset="quick", seed: int = 0, executor=None, store
             screened = []
             if stages:
                 x0, screened = warm_start(stages[-1], experiments[:k], preset=preset, store=store, executor=ex,
-                                          simulator=simulator)
+                                          simulator=simulator, progress=progress)
             stage = run_stage(experiments[:k], x0=x0, sigma0=sigma0, preset=preset, seed=seed + k - 1,
                               generations=generations, store=store, executor=ex, simulator=simulator,
                               progress=progress, stage_index=k)
