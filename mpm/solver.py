@@ -541,16 +541,13 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     return Simulation(sc.frame_times(), frames3, silhouettes, front, stats)
 
 
-def _shift(dim: int):
-    return ti.Vector([float(v) for v in GRID_SHIFT[:dim]])
-
-
 class _Run:
     """One simulation on an engine's buffers."""
 
     def __init__(self, eng: _Engine, scene: sc.DamBreak, eta, n, sigma_y, yue: bool):
         self.eng, self.scene = eng, scene
         self.eta, self.n, self.sigma_y, self.yue = eta, n, sigma_y, yue
+        self.shift = ti.Vector([float(v) for v in GRID_SHIFT[:scene.dim]])  # kernel argument, built once
         pos = scene.particles()
         self.count = len(pos)
         eng.ensure_particles(self.count)
@@ -575,7 +572,8 @@ class _Run:
         eng.lim.from_numpy(lim)
         win = np.zeros(16, np.int32)
         eng.win.from_numpy(win)
-        eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m, _shift(scene.dim), scene.half_length_m / scene.cell_m)
+        eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m, self.shift,
+                      scene.half_length_m / scene.cell_m)
         first = eng.acc.to_numpy()
         span = first[:, 3:3 + d].max(0) + 3 - first[:, :d].min(0)
         eng.ensure_grid(int(np.prod(span)) * 2)
@@ -586,7 +584,7 @@ class _Run:
         for _ in range(steps):
             eng.step(eng.x, eng.v, eng.C, eng.be, eng.flags, eng.grid, eng.win, eng.acc, eng.accf, eng.boxes,
                      eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass, s.particle_volume, s.kappa,
-                     s.mu, self.eta, self.n, self.sigma_y, s.gravity, s.plane_z_m, _shift(s.dim),
+                     s.mu, self.eta, self.n, self.sigma_y, s.gravity, s.plane_z_m, self.shift,
                      s.half_length_m / s.cell_m, self.yue)
 
     def _advance(self, steps: int, dt: float) -> None:

@@ -245,8 +245,13 @@ def _cma_options(generations: int, popsize: int, seed: int) -> dict:
 
 def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, generations: int, store: Store,
               executor=None, simulator: str = batch.DEFAULT_SIMULATOR,
-              progress: Callable[[dict], None] | None = None, stage_index: int = 1) -> Stage:
-    """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0``; resumable."""
+              progress: Callable[[dict], None] | None = None, stage_index: int = 1,
+              screened: Sequence[Sequence[float]] = ()) -> Stage:
+    """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0``; resumable.
+
+    ``screened``: rows [x0, x1, x2, loss] already evaluated on these experiments (:func:`warm_start`);
+    they count as the stage's evaluations (one new simulation each) and compete for its best candidate.
+    """
     t0 = time.perf_counter()
     objective = _Objective(experiments, preset, simulator, store, executor, progress)
     run_id = _stage_id(objective, x0, sigma0, seed, generations, preset)
@@ -258,7 +263,12 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             warnings.simplefilter("ignore")
             es = cma.CMAEvolutionStrategy(list(map(float, x0)), float(sigma0), _cma_options(generations, preset.popsize, seed))
         state = {"es": es, "generation": 0, "history": [], "best_x": None, "best_loss": np.inf,
-                 "evaluations": 0, "simulations": 0, "wall_seconds": 0.0, "stage": None, "archive": []}
+                 "evaluations": len(screened), "simulations": len(screened),  # earlier setups: from the store
+                 "wall_seconds": 0.0, "stage": None, "archive": [], "screened": [list(r) for r in screened]}
+        finite = [r for r in screened if np.isfinite(r[3])]
+        if finite:
+            top = min(finite, key=lambda r: r[3])
+            state["best_x"], state["best_loss"] = np.asarray(top[:3], float), float(top[3])
     es = state["es"]
     setups = [str(setup_of(e)) for e in experiments]
     if progress:
@@ -311,7 +321,7 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
         material=Material.from_array(denormalize(np.clip(state["best_x"], 0, 1))), loss=state["best_loss"],
         evaluations=state["evaluations"], simulations=state["simulations"], generations=state["generation"],
         history=state["history"], wall_seconds=state["wall_seconds"] + time.perf_counter() - t0,
-        archive=state.get("archive", []),
+        archive=state.get("archive", []), screened=state.get("screened", []),
     )
     state["stage"] = stage
     store.save_checkpoint(run_id, state)
@@ -400,14 +410,7 @@ def estimate(experiments, *, preset="quick", seed: int = 0, executor=None, store
                                           simulator=simulator, progress=progress)
             stage = run_stage(experiments[:k], x0=x0, sigma0=sigma0, preset=preset, seed=seed + k - 1,
                               generations=generations, store=store, executor=ex, simulator=simulator,
-                              progress=progress, stage_index=k)
-            stage.screened = screened
-            if screened:  # a re-scored candidate of the previous stage may beat everything the stage sampled
-                top = min(screened, key=lambda r: r[3])
-                if top[3] < stage.loss:
-                    stage.material, stage.loss = Material.from_array(denormalize(np.asarray(top[:3]))), top[3]
-            stage.evaluations += len(screened)
-            stage.simulations += len(screened)  # the earlier setups' runs of these come from the store
+                              progress=progress, stage_index=k, screened=screened)
             done = [setup_of(e) for e in experiments[:k]]
             nxt = propose(stage.material, done) if propose else None
             stage.next_setup = None if nxt is None else str(Setup(nxt.width_mm, nxt.height_mm))

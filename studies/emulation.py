@@ -57,8 +57,7 @@ class Case:
         """E_rel vs simulation count: single setup, and the two stages of the two-setup run."""
         single = E.e_rel_history(self.single.stages[0], self.truth)
         first = E.e_rel_history(self.double.stages[0], self.truth)
-        offset = self.double.stages[0].simulations + len(self.double.stages[1].screened) \
-            if len(self.double.stages) > 1 else 0
+        offset = self.double.stages[0].simulations  # stage 2's count includes its warm-start re-scoring
         second = [(s + offset, v) for s, v in E.e_rel_history(self.double.stages[1], self.truth)] \
             if len(self.double.stages) > 1 else []
         return {"single": single, "first": first, "second": second}

@@ -69,14 +69,14 @@ def flow_curve_png(path, curves: Mapping[str, object], *, dashed: Mapping[str, o
     return save_figure(fig, path)
 
 
-def save_figure(fig, path) -> Path:
-    """Lay out, save (creating the folder) and close a matplotlib figure."""
+def save_figure(fig, path, dpi=None) -> Path:
+    """Lay out, save (creating the folder) and close a matplotlib figure (dpi: the figure's own by default)."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
+    fig.savefig(path, dpi=dpi if dpi is not None else "figure")
     plt.close(fig)
     return path
 
