@@ -25,14 +25,14 @@ def exponent(n):
 def max_velocity(eta, n, sigma_y, P, L):
     """Plug (maximum) velocity v_max = n/(n+1) (P/eta)^(1/n) (L - l)^((n+1)/n); 0 without flow."""
     eta, n, sigma_y, P, L = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (eta, n, sigma_y, P, L)))
-    gap = np.maximum(L - sigma_y / P, 0.0)
+    gap = np.maximum(L - plug_half_width(sigma_y, P), 0.0)
     return n / (n + 1.0) * (P / eta) ** (1.0 / n) * gap ** exponent(n)  # eq. 24
 
 
 def decay_ratio(y, eta, n, sigma_y, P, L):
     """zeta(y) = 1 - (max(0, |y| - l) / (L - l))^((n+1)/n) for |y| <= L; 0 where nothing flows."""
     y, eta, n, sigma_y, P, L = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (y, eta, n, sigma_y, P, L)))
-    l = sigma_y / P
+    l = plug_half_width(sigma_y, P)
     gap = L - l
     flowing = gap > 0
     safe_gap = np.where(flowing, gap, 1.0)
@@ -47,7 +47,7 @@ def velocity(y, eta, n, sigma_y, P, L):
     without the division by L - l, so it stays accurate right above the no-flow limit L -> l.
     """
     y, eta, n, sigma_y, P, L = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (y, eta, n, sigma_y, P, L)))
-    l = sigma_y / P
+    l = plug_half_width(sigma_y, P)
     p = exponent(n)
     gap = np.maximum(L - l, 0.0)
     sheared = np.minimum(np.maximum(np.abs(y) - l, 0.0), gap)

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from poiseuille.flow import plug_half_width
+
 
 def constants(n):
     """The integrals C1..C6 over the sheared zone (eqs. 40-42, C5 corrected), as a tuple of arrays."""
@@ -36,7 +38,7 @@ def coefficients(eta, n, sigma_y, P, L):
     Where P*L <= sigma_y nothing flows: the coefficients are 0 and ``flowing`` is False.
     """
     eta, n, sigma_y, P, L = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (eta, n, sigma_y, P, L)))
-    l = sigma_y / P
+    l = plug_half_width(sigma_y, P)
     gap = L - l
     flowing = gap > 0
     wall_excess = np.where(flowing, P * L - sigma_y, eta)  # P L - sigma_y, dummy where no flow
