@@ -2,7 +2,7 @@
 another material: is the valley between them one basin, or two separated by a barrier?
 
     python bench/bench_loss_line.py [--truth ETA,N,SIGMA_Y] [--other ETA,N,SIGMA_Y] [--setups WxH ...]
-                                    [--cell-mm C] [--ppc P] [--points K]
+                                    [--cell-mm C] [--ppc P] [--t T ...]
 
 Defaults: the demo's material (3, 0.5, 15) and its coarse-model twin (6.79, 0.325, 10.44) on 40x50 and 57x25 mm
 at the quick preset's 7 mm cells. Prints a markdown table: t = 0 is the truth, t = 1 the other material.
@@ -29,7 +29,8 @@ def main(argv=None) -> int:
     p.add_argument("--setups", nargs="*", default=["40x50", "57x25"])
     p.add_argument("--cell-mm", type=float, default=7.0)
     p.add_argument("--ppc", type=int, default=None)
-    p.add_argument("--points", type=int, default=15)
+    p.add_argument("--t", type=float, nargs="*", default=list(np.round(np.linspace(-0.2, 1.2, 15), 2)),
+                   help="positions on the line (0: truth, 1: other)")
     args = p.parse_args(argv)
     preset = Preset("line", generations=1, cell_mm=args.cell_mm, ppc=args.ppc)
     truth, other = _material(args.truth), _material(args.other)
@@ -39,7 +40,7 @@ def main(argv=None) -> int:
     print(f"# truth {args.truth}, other {args.other}, cell {args.cell_mm:g} mm, ppc {args.ppc or 'default'}")
     print("\n| t | E_rel | " + " | ".join(f"loss {s}" for s in args.setups) + " | mean |")
     print("|---:|---:|" + "---:|" * (len(setups) + 1))
-    for t in np.linspace(-0.2, 1.2, args.points):
+    for t in args.t:
         m = Material.from_array(denormalize(a + t * (b - a)))
         jobs = [(_request(m, e, preset, batch.DEFAULT_SIMULATOR), batch.experiment_id(e.frames, e.name), e.frames)
                 for e in footage]
