@@ -18,10 +18,6 @@ from similarity.estimate import Preset, _request, emulate
 from similarity.space import Material, Setup, denormalize, e_rel, normalize
 
 
-def _material(text: str) -> Material:
-    return Material(*map(float, text.split(",")))
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--truth", default="3,0.5,15")
@@ -33,8 +29,8 @@ def main(argv=None) -> int:
                    help="positions on the line (0: truth, 1: other)")
     args = p.parse_args(argv)
     preset = Preset("line", generations=1, cell_mm=args.cell_mm, ppc=args.ppc)
-    truth, other = _material(args.truth), _material(args.other)
-    setups = [Setup(*map(float, s.lower().split("x"))) for s in args.setups]
+    truth, other = Material.parse(args.truth), Material.parse(args.other)
+    setups = [Setup.parse(s) for s in args.setups]
     footage = emulate(truth, setups, preset=preset)
     a, b = normalize(truth.as_array()), normalize(other.as_array())
     print(f"# truth {args.truth}, other {args.other}, cell {args.cell_mm:g} mm, ppc {args.ppc or 'default'}")

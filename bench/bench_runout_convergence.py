@@ -31,8 +31,8 @@ def main(argv=None) -> int:
     p.add_argument("--density", type=float, default=1200.0)
     p.add_argument("--runs", nargs="*", default=list(DEFAULT_RUNS), help="CELL_MM,PPC[,CFL] (default CFL: the solver's)")
     args = p.parse_args(argv)
-    material = Material(*map(float, args.material.split(",")))
-    setup = Setup(*map(float, args.setup.lower().split("x")))
+    material = Material.parse(args.material)
+    setup = Setup.parse(args.setup)
     default_cfl = solver.CFL
     print(f"# {args.dim}D, material {args.material}, setup {args.setup} mm, density {args.density:g} kg/m^3")
     print("\n| cell mm | ppc | spacing mm | CFL | front per frame (mm) | final front mm | steps | wall s |")
