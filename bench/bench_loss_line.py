@@ -14,7 +14,7 @@ import argparse
 import numpy as np
 
 from mpm import batch
-from similarity.estimate import Preset, _request, emulate
+from similarity.estimate import Preset, emulate, simulation_request
 from similarity.space import Material, Setup, denormalize, e_rel, normalize
 
 
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     print("|---:|---:|" + "---:|" * (len(setups) + 1))
     for t in args.t:
         m = Material.from_array(denormalize(a + t * (b - a)))
-        jobs = [(_request(m, e, preset, batch.DEFAULT_SIMULATOR), batch.experiment_id(e.frames, e.name), e.frames)
+        jobs = [(simulation_request(m, e, preset, batch.DEFAULT_SIMULATOR), batch.experiment_id(e.frames, e.name), e.frames)
                 for e in footage]
         losses = batch.evaluate_losses(jobs)
         print(f"| {t:.2f} | {e_rel(truth, m):.3f} | " + " | ".join(f"{v:.1e}" for v in losses)

@@ -101,7 +101,8 @@ def _image_size(experiment) -> tuple[int, int]:
     return int(frames.shape[-1]), int(frames.shape[-2])
 
 
-def _request(material, experiment, preset: Preset, simulator: str, image_size=None):
+def simulation_request(material, experiment, preset: Preset, simulator: str, image_size=None):
+    """The store/batch request that simulates ``material`` in ``experiment``'s setup and camera with ``preset``."""
     return batch.request_for(
         material, setup_of(experiment), density=float(experiment.density), depth_mm=float(experiment.depth_mm),
         camera=experiment.camera, cell_mm=preset.cell_mm, ppc=preset.ppc, dim=preset.dim, flow_rule=preset.flow_rule,
@@ -127,7 +128,7 @@ def emulate(material: Material, setups: Sequence[Setup], *, density: float = 100
     shells = [EmulatedExperiment(f"emulated_{Setup(s.width_mm, s.height_mm)}", float(s.width_mm), float(s.height_mm),
                                  float(depth_mm), float(density), camera, np.zeros((0, 0, 0), bool), material)
               for s in setups]
-    reqs = [_request(material, e, preset, simulator, image_size) for e in shells]
+    reqs = [simulation_request(material, e, preset, simulator, image_size) for e in shells]
     results = batch.evaluate(reqs, store=store, executor=executor)
     for e, r in zip(shells, results):
         if not r.ok or r.silhouettes is None:
@@ -213,7 +214,7 @@ class _Objective:
 
     def requests(self, x):
         m = Material.from_array(denormalize(np.clip(x, 0.0, 1.0)))
-        return [_request(m, e, self.preset, self.simulator) for e in self.experiments]
+        return [simulation_request(m, e, self.preset, self.simulator) for e in self.experiments]
 
     def __call__(self, X) -> np.ndarray:
         jobs = []
@@ -476,6 +477,6 @@ def simulated_frames(material: Material, experiments, *, preset="quick", store: 
     For an estimate's material these come straight from the store: the estimator simulated them.
     """
     preset = get_preset(preset)
-    reqs = [_request(material, e, preset, simulator) for e in experiments]
+    reqs = [simulation_request(material, e, preset, simulator) for e in experiments]
     ex = executor if executor is not None else batch.InlineExecutor()
     return [r.silhouettes if r.ok else None for r in batch.evaluate(reqs, store=store, executor=ex)]

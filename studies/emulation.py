@@ -94,6 +94,10 @@ def run_study(*, materials: int = 6, runs: int = 3, preset="quick", generations:
             single = E.estimate(filmed[:1], preset=preset, seed=run_seed, executor=executor, store=store,
                                 generations=3 * g + 1, simulator=simulator, progress=progress, propose=None)
             cases.append(Case(i, run, truth, first, single, double))
+            if progress:
+                progress({"event": "message", "text": f"  E_rel one setup {e_rel(truth, single.material):.3f}, "
+                          f"after setup 1 {e_rel(truth, double.stages[0].material):.3f}, two setups "
+                          f"{e_rel(truth, double.material):.3f} (setups {', '.join(map(str, double.setups))})"})
     return cases
 
 

@@ -52,7 +52,7 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     # the returned candidate is the best evaluated one of the final stage, recomputed from the store
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
     best = min(
-        np.mean([store_a.get_loss(E._request(Material.from_array(denormalize(h)), e, E.get_preset("quick"), SIM), eid)
+        np.mean([store_a.get_loss(E.simulation_request(Material.from_array(denormalize(h)), e, E.get_preset("quick"), SIM), eid)
                  for e, eid in zip(exps, eids)])
         for h in [gen["best_x"] for gen in a.stages[1].history] + [r[:3] for r in screened]
     )
@@ -155,7 +155,7 @@ def test_real_solver_end_to_end_small(tmp_path, monkeypatch):
     (exp,) = E.emulate(truth, [Setup(30, 30)], preset=tiny, store=store, executor=batch.InlineExecutor())
     assert exp.frames.shape == (8, 540, 960) and exp.frames.any()
     # determinism: simulating the ground truth again (bypassing the store) gives the same pictures
-    again = batch.run_one(E._request(truth, exp, tiny, batch.DEFAULT_SIMULATOR))
+    again = batch.run_one(E.simulation_request(truth, exp, tiny, batch.DEFAULT_SIMULATOR))
     assert np.array_equal(again.silhouettes, exp.frames)
     est = E.estimate([exp], preset=tiny, seed=0, workers=0, store=store, propose=None)
     assert store.count() == 1 + est.simulations
