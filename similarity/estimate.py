@@ -57,7 +57,7 @@ PRESETS = {
     # per cell per axis (REFERENCE_SPEC 2.1, 2.3)
     "paper": Preset("paper", generations=100, cell_mm=1.26, ppc=2),
     # tuned for `virheo demo` on a 2-core CPU (see docs/performance.md)
-    "quick": Preset("quick", generations=15, cell_mm=7.0, sigma0=0.2),
+    "quick": Preset("quick", generations=40, cell_mm=5.0, sigma0=0.2),
 }
 
 
