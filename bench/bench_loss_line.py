@@ -38,8 +38,8 @@ def main(argv=None) -> int:
     print("|---:|---:|" + "---:|" * (len(setups) + 1))
     for t in args.t:
         m = Material.from_array(denormalize(a + t * (b - a)))
-        jobs = [(simulation_request(m, e, preset, batch.DEFAULT_SIMULATOR), batch.experiment_id(e.frames, e.name), e.frames)
-                for e in footage]
+        jobs = [(simulation_request(m, e, preset, batch.DEFAULT_SIMULATOR), batch.experiment_id(e.frames, e.name),
+                 e.frames) for e in footage]
         losses = batch.evaluate_losses(jobs)
         print(f"| {t:.2f} | {e_rel(truth, m):.3f} | " + " | ".join(f"{v:.1e}" for v in losses)
               + f" | {losses.mean():.1e} |", flush=True)

@@ -14,8 +14,8 @@ Discretisation: particles on a cell-centred lattice (no jitter), ``PARTICLES_PER
 (default 1; the reference uses 2) with uGIMP half-length l_p = spacing / 2; default cell width
 ``DEFAULT_CELL_MM`` = 1.5 mm. Both chosen by a convergence study (docs/performance.md, "Forward model"):
 for equal cost a finer grid with one particle per cell is closer to the finest one-particle run than the
-reference's two per axis on a coarser grid. Thin films of runny material on the sticking floor converge with neither: their runout keeps falling as the
-grid resolves the no-slip boundary layer, and one particle per cell flows 15-30 % less than two and depends
+reference's two per axis on a coarser grid. Thin films of runny material on the sticking floor converge with
+neither: their runout keeps falling as the grid resolves the no-slip boundary layer, and one particle per cell flows 15-30 % less than two and depends
 on the time step; only the paper's discretisation (``simulate(..., cell_mm=1.26, ppc=2)``) reproduces the
 paper's fits of such materials (docs/results.md, "Cause: the discretisation of a thin film").
 Grid nodes lie on the wall planes (x = 0, y = 0, z = 0 are nodes) unless ``GRID_SHIFT`` moves them.

@@ -56,7 +56,7 @@ PRESETS = {
     # the paper's budget and discretisation: 100 generations x 7 per stage, 1.26 mm cells, 2 particles
     # per cell per axis (REFERENCE_SPEC 2.1, 2.3)
     "paper": Preset("paper", generations=100, cell_mm=1.26, ppc=2),
-    # tuned for `virheo demo` on a 2-core CPU (see docs/performance.md)
+    # tuned for `virheo demo` on a 2-core CPU (docs/estimation.md, "Session 4"; costs in docs/performance.md)
     "quick": Preset("quick", generations=40, cell_mm=5.0, sigma0=0.2),
 }
 

@@ -52,7 +52,8 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     # the returned candidate is the best evaluated one of the final stage, recomputed from the store
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
     best = min(
-        np.mean([store_a.get_loss(E.simulation_request(Material.from_array(denormalize(h)), e, E.get_preset("quick"), SIM), eid)
+        np.mean([store_a.get_loss(E.simulation_request(Material.from_array(denormalize(h)), e, E.get_preset("quick"),
+                                                       SIM), eid)
                  for e, eid in zip(exps, eids)])
         for h in [gen["best_x"] for gen in a.stages[1].history] + [r[:3] for r in screened]
     )
