@@ -20,6 +20,7 @@ SIM = "fake_forward:simulate"
 TRUTH = Material(3.0, 0.6, 12.0)
 SIZE = (192, 108)
 TESTS = Path(__file__).resolve().parent
+GENS = E.get_preset("quick").generations  # 40; at 12 the elitist strategy ends farther than the centre on this toy
 
 
 def _footage(store, setups=((30, 50), (60, 25)), truth=TRUTH):
@@ -36,13 +37,14 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     runs = []
     for name in ("a", "b"):
         store = Store(tmp_path / name)
-        runs.append((E.estimate(exps, seed=7, workers=0, store=store, simulator=SIM, generations=12, propose=_fixed), store))
+        runs.append((E.estimate(exps, seed=7, workers=0, store=store, simulator=SIM, generations=GENS, propose=_fixed),
+                     store))
     (a, store_a), (b, _) = runs
     assert a.material == b.material and a.loss == b.loss
     screened = a.stages[1].screened
     assert 2 <= len(screened) <= 7  # stage 2 starts by re-scoring stage 1's best distinct candidates
-    assert [s.evaluations for s in a.stages] == [12 * 7, 12 * 7 + len(screened)]  # no NaN: no resampling
-    assert a.simulations == 12 * 7 * 1 + 12 * 7 * 2 + len(screened)
+    assert [s.evaluations for s in a.stages] == [GENS * 7, GENS * 7 + len(screened)]  # no NaN: no resampling
+    assert a.simulations == GENS * 7 * 1 + GENS * 7 * 2 + len(screened)
     # the previous estimate is among them, and the others are the best of stage 1's archive, spread out
     assert screened[0][:3] == pytest.approx(list(E.normalize(a.stages[0].material.as_array())))
     xs = np.array([r[:3] for r in screened])
