@@ -35,8 +35,9 @@ from similarity.space import Material, Setup, center, denormalize, e_rel, normal
 POPSIZE = 7  # = 4 + floor(3 ln 3) for 3 parameters (REFERENCE_SPEC 4.2)
 RESAMPLE = 3  # rounds of resampling NaN candidates within one generation
 PAPER_SIGMA0 = 0.1  # Sigma = 1.0 in the reference's [0, 10]^3 box
-# pycma's CMA_elitist: the best point so far stays in the population (the loss is deterministic); it lifted the
-# 6 x 3 emulation study from 5/18 to 8/18 good with two setups (docs/estimation.md, "Session 5")
+# pycma's CMA_elitist: the best point so far stays in the population (the loss is deterministic). On the MPM it lifted
+# the 6 x 3 emulation study from 5/18 to 8/18 good with two setups; on the tests' smooth toy model it converges early
+# (docs/estimation.md, "Session 5")
 CMA_ELITIST = True
 WARM_START_SPACING = 0.03  # minimum distance in [0, 1]^3 between re-scored candidates of the previous stage
 
