@@ -4,9 +4,11 @@ Stage k optimises the mean video loss (eq. 3) over the first k setups with pycma
 material space [0, 1]^3 (bounded, population 7).  Stage 1 starts at the centre of the space, stage k
 at the previous estimate.  Step size: the paper's Sigma = (2/3)^(k-1) is in the authors' internal
 [0, 10]^3 box (REFERENCE_SPEC 4.2), i.e. sigma0 = 0.1 * (2/3)^(k-1) in [0, 1]^3; a preset may scale
-it (``Preset.sigma0``).  The strategy is pycma's elitist CMA-ES (``CMA_ELITIST``).  We return the
-best *evaluated* candidate over the whole stage (the reference returned the best of the last
-generation, REFERENCE_SPEC 4.2 / 7.11).
+it (``Preset.sigma0``).  The strategy is pycma's elitist CMA-ES (``CMA_ELITIST``).  A stage's budget
+is ``generations x 7`` candidate draws; when a run converges (``TOLX``) or stalls (``STALL_DRAWS``)
+before the budget is spent, it restarts from the stage's start with twice the population (IPOP).
+We return the best *evaluated* candidate over the whole stage, restarts included (the reference
+returned the best of the last generation, REFERENCE_SPEC 4.2 / 7.11).
 
 Failed simulations give NaN.  NaN candidates are resampled from the same search distribution
 (``es.ask(1)``, up to ``RESAMPLE`` times); if some stay NaN, pycma's ``tell`` replaces them by the
@@ -39,6 +41,11 @@ PAPER_SIGMA0 = 0.1  # Sigma = 1.0 in the reference's [0, 10]^3 box
 # the 6 x 3 emulation study from 5/18 to 8/18 good with two setups; on the tests' smooth toy model it converges early
 # (docs/estimation.md, "Session 5")
 CMA_ELITIST = True
+# IPOP restarts within a stage's budget of generations x popsize draws: when pycma's stopping rules fire or the best
+# loss has not improved for STALL_DRAWS draws, CMA-ES starts again from the stage's x0 and sigma0 with twice the
+# population (docs/estimation.md, "Session 6")
+STALL_DRAWS = 20 * POPSIZE
+TOLX = 1e-3  # a run has converged when its steps are below 0.1 % of the box (pycma's default, 1e-11, never fires)
 WARM_START_SPACING = 0.03  # minimum distance in [0, 1]^3 between re-scored candidates of the previous stage
 
 
@@ -237,6 +244,7 @@ def _stage_id(objective: _Objective, x0, sigma0, seed, generations, preset: Pres
     return digest({
         "experiments": objective.exp_ids, "x0": [float(v) for v in x0], "sigma0": float(sigma0), "seed": int(seed),
         "generations": int(generations), "popsize": preset.popsize, "elitist": CMA_ELITIST,
+        "restarts": f"ipop/{STALL_DRAWS}/{TOLX}",
         "forward": [r.to_dict() | {"eta": 0, "n": 0, "sigma_y": 0} for r in reqs],
     })[:32]
 
@@ -246,6 +254,7 @@ def _cma_options(generations: int, popsize: int, seed: int) -> dict:
         "bounds": [0.0, 1.0], "popsize": popsize, "maxiter": generations, "verbose": -9, "CMA_elitist": CMA_ELITIST,
         "randn": np.random.RandomState(seed).randn,  # private RNG: pickled with the strategy
         "seed": np.nan, "tolflatfitness": 10**9,  # flat silhouettes early on must not end the stage
+        "tolx": TOLX,
     }
 
 
@@ -279,9 +288,15 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
     setups = [str(setup_of(e)) for e in experiments]
     if progress:
         progress({"event": "stage", "stage": stage_index, "setups": setups, "generations": generations,
-                  "generation": state["generation"]})
-    while state["generation"] < generations and not _stopped(es):
-        X = [np.asarray(x, float) for x in es.ask()]
+                  "generation": state.get("drawn", 0) // preset.popsize})
+    budget = generations * preset.popsize  # candidate draws per stage, whatever the restarts' population
+    while state.setdefault("drawn", state["generation"] * preset.popsize) < budget:
+        if _stopped(es) or _stalled(state):
+            es = _restart(state, x0, sigma0, preset.popsize, seed)
+        # the budget's last draws may not fill a restart's generation: sampled, never told
+        left = budget - state["drawn"]
+        X = [np.asarray(x, float) for x in (es.ask() if left >= es.popsize else es.ask(left))]
+        state["drawn"] += len(X)
         F = objective(X)
         evaluations = len(X)
         for _ in range(RESAMPLE):
@@ -297,9 +312,10 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             [float(v) for v in np.clip(x, 0.0, 1.0)] + [float(f)] for x, f in zip(X, F) if np.isfinite(f))
         if finite.any():
             i = int(np.nanargmin(np.where(finite, F, np.inf)))
+            state["run_best"] = min(state.get("run_best", np.inf), float(F[i]))
             if F[i] < state["best_loss"]:
                 state["best_loss"], state["best_x"] = float(F[i]), X[i].copy()
-        if finite.sum() >= 2:
+        if finite.sum() >= 2 and len(X) == es.popsize:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # pycma warns when it replaces NaN by the median
                 es.tell(X, [float(f) if np.isfinite(f) else np.nan for f in F])
@@ -313,12 +329,13 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             "best_loss": state["best_loss"],
             "best_x": None if state["best_x"] is None else [float(v) for v in state["best_x"]],
             "mean_x": [float(v) for v in es.mean], "sigma": float(es.sigma),
+            "drawn": state["drawn"], "restarts": state.get("restarts", 0), "run_best": state.get("run_best", np.inf),
         })
         state["wall_seconds"] += time.perf_counter() - t0
         t0 = time.perf_counter()
         store.save_checkpoint(run_id, state)
         if progress:
-            progress({"event": "generation", "stage": stage_index, "generation": state["generation"],
+            progress({"event": "generation", "stage": stage_index, "generation": state["drawn"] // preset.popsize,
                       "generations": generations, "best_loss": state["best_loss"]})
     if state["best_x"] is None:
         raise RuntimeError(f"every simulation failed in stage {stage_index} ({', '.join(setups)})")
@@ -361,6 +378,25 @@ def warm_start(previous: Stage, experiments, *, preset: Preset, store: Store, ex
         return picked[0], []
     best = int(np.nanargmin(np.where(np.isfinite(F), F, np.inf)))
     return picked[best], [[float(v) for v in x] + [float(f)] for x, f in zip(picked, F)]
+
+
+def _stalled(state) -> bool:
+    """True when the current run's best loss has not improved over its last ``STALL_DRAWS`` draws."""
+    recent = [h for h in state["history"] if h.get("drawn", 0) > state.get("restart_drawn", 0)]
+    old = [h["run_best"] for h in recent if h["drawn"] <= state["drawn"] - STALL_DRAWS]
+    return bool(old) and not recent[-1]["run_best"] < old[-1]
+
+
+def _restart(state, x0, sigma0: float, popsize: int, seed: int):
+    """IPOP restart (Auger & Hansen 2005): the stage's initial distribution again with twice the population."""
+    restarts = state.get("restarts", 0) + 1
+    lam = popsize * 2**restarts
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        es = cma.CMAEvolutionStrategy(list(map(float, x0)), float(sigma0),
+                                      _cma_options(10**6, lam, seed + 7919 * restarts))
+    state.update(es=es, restarts=restarts, restart_drawn=state["drawn"], run_best=np.inf)
+    return es
 
 
 def _stopped(es) -> bool:

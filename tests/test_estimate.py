@@ -88,6 +88,46 @@ def test_propose_chains_setups_with_acquire(tmp_path):
     assert est.setups == ["30x50", "60x25"] and len(est.stages) == 2
 
 
+class _Interrupt(Exception):
+    pass
+
+
+def _stage(exps, store, generations, progress=None):
+    return E.run_stage(exps, x0=E.normalize(E.center().as_array()), sigma0=0.2, preset=E.get_preset("quick"), seed=5,
+                       generations=generations, store=store, executor=batch.InlineExecutor(), simulator=SIM,
+                       progress=progress)
+
+
+def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch):
+    exps = _footage(Store(tmp_path / "truth"), setups=((30, 50),))
+    plain = _stage(exps, Store(tmp_path / "plain"), 30)  # STALL_DRAWS = 20 generations: no restart on this toy
+    assert {h["restarts"] for h in plain.history} == {0}
+    monkeypatch.setattr(E, "STALL_DRAWS", 3 * 7)
+    ref = _stage(exps, Store(tmp_path / "ref"), 30)
+    draws = np.diff([0] + [h["drawn"] for h in ref.history])
+    restarts = [h["restarts"] for h in ref.history]
+    assert max(restarts) >= 1
+    assert all(d == 7 * 2**r for d, r in zip(draws[:-1], restarts))  # IPOP: each restart doubles the population
+    assert draws[-1] <= 7 * 2 ** restarts[-1]  # the last generation may be cut short by the budget ...
+    assert ref.history[-1]["drawn"] == ref.evaluations == 30 * 7  # ... which is spent exactly (no NaN here)
+    # until the first restart both runs are the same CMA-ES; the restarts can only improve on what it had found
+    first = restarts.index(1)
+    assert [h["best_x"] for h in ref.history[:first]] == [h["best_x"] for h in plain.history[:first]]
+    assert ref.loss <= ref.history[first - 1]["best_loss"]
+    # interrupted after a restart and run again: the same stage as the uninterrupted run
+    store = Store(tmp_path / "killed")
+
+    def stop(event):
+        if event["event"] == "generation" and event["generation"] * 7 > ref.history[first]["drawn"]:
+            raise _Interrupt
+
+    with pytest.raises(_Interrupt):
+        _stage(exps, store, 30, progress=stop)
+    resumed = _stage(exps, store, 30)
+    assert resumed.material == ref.material and resumed.loss == ref.loss
+    assert [h["drawn"] for h in resumed.history] == [h["drawn"] for h in ref.history]
+
+
 _RUNNER = textwrap.dedent("""
     import json, sys
     sys.path[:0] = [{repo!r}, {tests!r}]
