@@ -279,7 +279,8 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             es = cma.CMAEvolutionStrategy(list(map(float, x0)), float(sigma0), _cma_options(generations, preset.popsize, seed))
         state = {"es": es, "generation": 0, "history": [], "best_x": None, "best_loss": np.inf,
                  "evaluations": len(screened), "simulations": len(screened),  # earlier setups: from the store
-                 "wall_seconds": 0.0, "stage": None, "archive": [], "screened": [list(r) for r in screened]}
+                 "wall_seconds": 0.0, "stage": None, "archive": [], "screened": [list(r) for r in screened],
+                 "drawn": 0, "restarts": 0, "restart_drawn": 0, "run_best": np.inf}  # draws and IPOP restarts
         finite = [r for r in screened if np.isfinite(r[3])]
         if finite:
             top = min(finite, key=lambda r: r[3])
@@ -288,11 +289,11 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
     setups = [str(setup_of(e)) for e in experiments]
     if progress:
         progress({"event": "stage", "stage": stage_index, "setups": setups, "generations": generations,
-                  "generation": state.get("drawn", 0) // preset.popsize})
+                  "generation": state["drawn"] // preset.popsize})
     budget = generations * preset.popsize  # candidate draws per stage, whatever the restarts' population
-    while state.setdefault("drawn", state["generation"] * preset.popsize) < budget:
+    while state["drawn"] < budget:
         if _stopped(es) or _stalled(state):
-            es = _restart(state, x0, sigma0, preset.popsize, seed)
+            es = _restart(state, x0, sigma0, preset.popsize, seed, generations)
         # the budget's last draws may not fill a restart's generation: sampled, never told
         left = budget - state["drawn"]
         X = [np.asarray(x, float) for x in (es.ask() if left >= es.popsize else es.ask(left))]
@@ -312,7 +313,7 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             [float(v) for v in np.clip(x, 0.0, 1.0)] + [float(f)] for x, f in zip(X, F) if np.isfinite(f))
         if finite.any():
             i = int(np.nanargmin(np.where(finite, F, np.inf)))
-            state["run_best"] = min(state.get("run_best", np.inf), float(F[i]))
+            state["run_best"] = min(state["run_best"], float(F[i]))
             if F[i] < state["best_loss"]:
                 state["best_loss"], state["best_x"] = float(F[i]), X[i].copy()
         if finite.sum() >= 2 and len(X) == es.popsize:
@@ -329,7 +330,7 @@ def run_stage(experiments, *, x0, sigma0: float, preset: Preset, seed: int, gene
             "best_loss": state["best_loss"],
             "best_x": None if state["best_x"] is None else [float(v) for v in state["best_x"]],
             "mean_x": [float(v) for v in es.mean], "sigma": float(es.sigma),
-            "drawn": state["drawn"], "restarts": state.get("restarts", 0), "run_best": state.get("run_best", np.inf),
+            "drawn": state["drawn"], "restarts": state["restarts"], "run_best": state["run_best"],
         })
         state["wall_seconds"] += time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -382,26 +383,26 @@ def warm_start(previous: Stage, experiments, *, preset: Preset, store: Store, ex
 
 def _stalled(state) -> bool:
     """True when the current run's best loss has not improved over its last ``STALL_DRAWS`` draws."""
-    recent = [h for h in state["history"] if h.get("drawn", 0) > state.get("restart_drawn", 0)]
+    recent = [h for h in state["history"] if h["drawn"] > state["restart_drawn"]]
     old = [h["run_best"] for h in recent if h["drawn"] <= state["drawn"] - STALL_DRAWS]
     return bool(old) and not recent[-1]["run_best"] < old[-1]
 
 
-def _restart(state, x0, sigma0: float, popsize: int, seed: int):
+def _restart(state, x0, sigma0: float, popsize: int, seed: int, generations: int):
     """IPOP restart (Auger & Hansen 2005): the stage's initial distribution again with twice the population."""
-    restarts = state.get("restarts", 0) + 1
+    restarts = state["restarts"] + 1
     lam = popsize * 2**restarts
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         es = cma.CMAEvolutionStrategy(list(map(float, x0)), float(sigma0),
-                                      _cma_options(10**6, lam, seed + 7919 * restarts))
+                                      _cma_options(generations, lam, seed + 7919 * restarts))
     state.update(es=es, restarts=restarts, restart_drawn=state["drawn"], run_best=np.inf)
     return es
 
 
 def _stopped(es) -> bool:
     stop = dict(es.stop())
-    stop.pop("maxiter", None)  # our own generation counter decides that
+    stop.pop("maxiter", None)  # the stage's budget of draws decides that
     return bool(stop)
 
 
