@@ -3,8 +3,8 @@
     python bench/bench_footage_loss.py [--experiment NAME] [--cells 3,2.5,2,1.5] [--radii 0.8,1.0,1.2,1.5,2.0]
 
 Default: the Japanese thickened Worcestershire sauce's setup-2 footage at the experimenters' setup-1
-estimate (first_estimates.csv), where the reference pipeline scores 0.0040 (REFERENCE_SPEC 9.4); the
-issue's target is <= 0.006. For each cell width it runs one simulation and renders the 8 frames with the
+estimate (first_estimates.csv), where the reference implementation's pipeline scores 0.0040; the
+target is <= 0.006. For each cell width it runs one simulation and renders the 8 frames with the
 default radius and with each radius of ``--radii`` (mm). Slow (minutes at 1.5 mm cells on 2 cores).
 """
 from __future__ import annotations

@@ -5,7 +5,7 @@ another material: is the valley between them one basin, or two separated by a ba
                                     [--cell-mm C] [--ppc P] [--t T ...]
 
 Defaults: the demo's material (3, 0.5, 15) and its coarse-model twin (6.79, 0.325, 10.44) on 40x50 and 57x25 mm
-at the quick preset's 7 mm cells. Prints a markdown table: t = 0 is the truth, t = 1 the other material.
+at 7 mm cells. Prints a markdown table: t = 0 is the truth, t = 1 the other material.
 """
 from __future__ import annotations
 

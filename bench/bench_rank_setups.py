@@ -3,7 +3,7 @@
     python bench/bench_rank_setups.py [--repeat 200]
 
 Prints the median and best wall time of one full ranking (Theta map, plane-Poiseuille Hessians,
-batched eigenvectors, scores) and of its parts. Numbers go to docs/performance.md ("rank_setups").
+batched eigenvectors, scores) and of its parts. Numbers go to docs/performance.md ("Setup ranking").
 """
 from __future__ import annotations
 

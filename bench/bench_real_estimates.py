@@ -1,4 +1,4 @@
-"""ViRheometry on real footage for the four materials with rheometer curves (issue 4 acceptance table).
+"""ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
     python bench/bench_real_estimates.py [--cell-mm 3] [--generations 12] [--workers 2] [--store PATH]
 

@@ -1,12 +1,12 @@
 """Real footage at the paper's Table-1 parameters versus the material-space centre and one-at-a-time
-perturbations (issue 3 acceptance), plus every shared experiment's loss at Table 1.
+perturbations, plus every shared experiment's loss at Table 1.
 
     python bench/bench_real_footage.py [--cell-mm X] [--ppc P] [--workers K] [--store PATH] [--materials NAME ...]
                                        [--columns LABEL ...]
 
 For each material of manifest.csv: loss summed over its two setups at Table 1, at the centre of the material
 space, and with eta x3, x1/3, sigma_y x2, x1/2 (+-5 Pa where sigma_y < 5 Pa). Prints markdown tables
-(docs/results.md records them). Results go to a simulation store, so a killed run resumes.
+(docs/validation.md records them). Results go to a simulation store, so a killed run resumes.
 """
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ discretisations (cell width, particles per cell per axis, CFL), 2D plane strain 
                                              [--density RHO] [--runs CELL,PPC[,CFL] ...]
 
 Defaults: the thickened Worcestershire sauce at Table 1 (0.55, 0.81, 1.95) in its setup 1 (21 x 40 mm,
-1200 kg/m^3), the runniest flow of the shared footage. Prints a markdown table (docs/results.md records it):
+1200 kg/m^3), the runniest flow of the shared footage. Prints a markdown table (docs/method/forward-model.md records it):
 front = max x of the moving material at t = k/24 s, in mm.
 """
 from __future__ import annotations

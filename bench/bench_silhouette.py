@@ -4,7 +4,7 @@
 
 Prints (1) wall time of render_frames for 8 frames of 20k-400k particles, (2) time to load an experiment
 folder (8 PNGs at 1920x1080 -> masks at 960x540), (3) per shared experiment the IoU of the projected
-initial cuboid with frame 1, as stated and with W and H swapped. Numbers go to docs/silhouettes.md.
+initial cuboid with frame 1, as stated and with W and H swapped. Numbers go to docs/performance.md.
 """
 from __future__ import annotations
 

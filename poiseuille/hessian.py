@@ -11,7 +11,7 @@ the profile is v = n S (1 - s^p), S = W^p eta / (P (n+1)), p = (n+1)/n, and
 The paper factors H = L^3 H~ (eq. 30) and prints A/L, B/L (eqs. 37-39); here the unfactored
 coefficients are used, which is the same matrix. Every entry is checked against sympy in
 :mod:`poiseuille.derivation` and against finite differences + quadrature in the tests. The
-paper's printed C5 (eq. 42) is wrong; see docs/errata.md.
+paper's printed C5 (eq. 42) is wrong; see docs/method/errata.md.
 """
 from __future__ import annotations
 
