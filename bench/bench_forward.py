@@ -4,7 +4,7 @@ Prints, for 30 x 20 mm and 70 x 70 mm setups at the paper's cell width (1.26 mm)
 wall time, CPU time (all threads; robust to other load on a shared machine), particles, steps and
 particle-steps per second; then the silhouette convergence (IoU of the default against a 2x finer cell
 width) on shared experiments at their paper Table-1 parameters, and the loss of the Worcestershire
-setup-2 footage at the experimenters' setup-1 estimate (reference pipeline: 0.0040, REFERENCE_SPEC 9.4).
+setup-2 footage at the experimenters' setup-1 estimate (the reference implementation's pipeline gives 0.0040).
 
     python bench/bench_forward.py                 # everything but the 70 x 70 mm run at 1.26 mm
     python bench/bench_forward.py --paper-70      # also that one (~900k particles, tens of minutes)
@@ -23,10 +23,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import mpm  # noqa: E402
-from mpm import solver  # noqa: E402
+from mpm import runtime, solver  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
 
-REFERENCE_S = 570.0 + 8 * 24.0  # REFERENCE_SPEC 8: 4500 steps in 570 s + 8 frames skinned at 19-32 s each
+REFERENCE_S = 570.0 + 8 * 24.0  # the reference implementation: 4500 steps in 570 s + 8 frames skinned at 19-32 s each
 PAPER = ("paper", 1.26, 2)  # the reference's discretisation: 1.26 mm cells, 2 particles per cell per axis
 
 
@@ -43,7 +43,7 @@ def evaluate(material, setup, *, density=1000.0, cell_mm=None, camera=None, dept
 def timing(paper_70: bool) -> None:
     mat = NS(eta=1.0, n=0.8, sigma_y=5.0)  # a mid-range material, flowing but not runny
     default = ("default", solver.DEFAULT_CELL_MM, solver.PARTICLES_PER_CELL)
-    print(f"# timing, material eta=1 Pa s^n, n=0.8, sigma_y=5 Pa, rho=1000; threads {solver._threads()}")
+    print(f"# timing, material eta=1 Pa s^n, n=0.8, sigma_y=5 Pa, rho=1000; threads {runtime.threads()}")
     evaluate(mat, NS(width_mm=30, height_mm=20), cell_mm=4.0)  # compile / load kernels first
     print(f"{'setup':>8} {'run':>8} {'cell':>5} {'ppc':>3} {'particles':>9} {'steps':>5} {'wall_s':>7} {'sim_s':>7} "
           f"{'render_s':>8} {'cpu_s':>7} {'Mpstep/s':>8} {'Mpstep/cpu-s':>12} {'vs ref':>6}  load")

@@ -22,7 +22,7 @@ import os
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
-from typing import Callable, Iterable, NamedTuple, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -31,7 +31,7 @@ from mpm.store import SimRequest, SimResult, Store, digest
 DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
 
 # Source files of this package that do not change what a simulation computes.
-_NOT_SIMULATION = {"store.py", "batch.py", "datasets.py", "experiment.py", "loss.py", "__init__.py"}
+_NOT_SIMULATION = {"store.py", "batch.py", "datasets.py", "experiment.py", "loss.py", "shear.py", "__init__.py"}
 
 
 # -- requests --------------------------------------------------------------------------------------
@@ -87,26 +87,13 @@ def code_version(simulator: str) -> str:
 
 
 # -- the forward model (runs in the workers) -------------------------------------------------------
-class _Material(NamedTuple):
-    """Plain (eta, n, sigma_y) record for the solver (which reads ``.eta .n .sigma_y``; mpm does not
-    import similarity)."""
-
-    eta: float
-    n: float
-    sigma_y: float
-
-
-class _Setup(NamedTuple):
-    width_mm: float
-    height_mm: float
-
-
 def run_mpm(request: SimRequest) -> SimResult:
     """The default forward model: :func:`mpm.simulate` with the request's settings."""
     import mpm.solver as solver
     from mpm.camera import Camera
+    from mpm.params import Material, Setup
 
-    material, setup = _Material(*request.material), _Setup(request.width_mm, request.height_mm)
+    material, setup = Material(*request.material), Setup(request.width_mm, request.height_mm)
     camera = Camera.from_dict(json.loads(request.camera)) if request.camera else None
     sim = solver.simulate(
         material, setup, density=request.density, cell_mm=request.cell_mm, dim=request.dim,
@@ -235,13 +222,6 @@ def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, exec
     return [results[req.key] for req in requests]
 
 
-def video_loss(sim_frames, ref_frames) -> float:
-    """Eq. 3 via :func:`mpm.loss.video_loss` (fraction of differing pixels, averaged over frames)."""
-    from mpm.loss import video_loss as _video_loss
-
-    return float(_video_loss(sim_frames, ref_frames))
-
-
 def evaluate_losses(jobs: Iterable[tuple[SimRequest, str, np.ndarray]], *, store: Store | None = None,
                     executor=None, on_result=None) -> np.ndarray:
     """Video losses (eq. 3) of ``(request, experiment_id, reference_frames)`` jobs; NaN for failures.
@@ -264,6 +244,8 @@ def evaluate_losses(jobs: Iterable[tuple[SimRequest, str, np.ndarray]], *, store
         by_key: dict[str, list[int]] = {}
         for i in missing:
             by_key.setdefault(jobs[i][0].key, []).append(i)
+
+        from mpm.loss import video_loss
 
         def _done(req, res, cached):
             for i in by_key.get(req.key, []):

@@ -1,6 +1,6 @@
 """Calibrated pinhole camera of an experiment (``camera_params.xml``) and world-to-pixel projection.
 
-Convention (REFERENCE_SPEC 3.2-3.4): the stored quaternion (w, x, y, z) rotates camera axes into the
+Convention (the reference implementation's): the stored quaternion (w, x, y, z) rotates camera axes into the
 Y-up simulation frame; the camera looks along its local -Z, local +Y is up, local +X is right; ``fov`` is
 the VERTICAL field of view in degrees. A world point X maps to camera coordinates X_c = R^T (X - e) and
 to continuous pixel coordinates
@@ -22,6 +22,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+from mpm.params import WORKING_SIZE
 
 NEAR_M = 1e-3  # points closer than this in front of the eye do not project (returned as NaN)
 
@@ -119,14 +121,14 @@ class Camera:
         """Distance of each point in front of the eye along the view axis (metres)."""
         return -self.to_camera(points_m)[:, 2]
 
-    def project(self, points_m, image_size=(960, 540)) -> np.ndarray:
+    def project(self, points_m, image_size=WORKING_SIZE) -> np.ndarray:
         """(N, 2) continuous pixel coordinates (u right, v down, origin at the top-left image edge).
 
         Points not in front of the camera come back as NaN.
         """
         return self.project_with_depth(points_m, image_size)[0]
 
-    def project_with_depth(self, points_m, image_size=(960, 540)) -> tuple[np.ndarray, np.ndarray]:
+    def project_with_depth(self, points_m, image_size=WORKING_SIZE) -> tuple[np.ndarray, np.ndarray]:
         """(:meth:`project`, :meth:`depth`) in one pass."""
         width, height = image_size_of(image_size)
         pc = self.to_camera(points_m)

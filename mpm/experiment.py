@@ -22,10 +22,8 @@ import numpy as np
 
 from mpm import camera as _camera
 from mpm.camera import Camera
-from mpm.loss import WORKING_SIZE, load_reference
-
-N_FRAMES = 8
-FPS = 24.0
+from mpm.loss import load_reference
+from mpm.params import FPS, N_FRAMES, WORKING_SIZE
 FRAME_TIMES_S = tuple(k / FPS for k in range(1, N_FRAMES + 1))  # frame k <-> config_k at t = k/24 s
 WALL_OVERLAP_CM = 0.15  # the reference cuboid reaches 0.15 cm into the back, floor and far walls
 _FRAME_NAME = re.compile(r"^config_(\d+)\.png$", re.I)

@@ -1,10 +1,9 @@
-"""Captured silhouettes and the video loss of eq. 3, computed exactly as the reference does.
+"""Captured silhouettes and the video loss of eq. 3, computed as the reference implementation does.
 
-Reference preprocessing (REFERENCE_SPEC 3.5): the 1920x1080 RGB frame is averaged over 2x2 blocks to
-960x540, turned gray (0.299 R + 0.587 G + 0.114 B), and a gray level above 130 is background, anything
-else material. The loss of a frame is the fraction of the 960x540 pixels where the simulated and the
-captured masks differ (spec 4.1; binary masks, so the squared difference of eq. 3 is the XOR), and the
-loss of a video is the mean over its frames.
+A captured 1920x1080 RGB frame is averaged over 2x2 blocks to the working size 960x540, turned gray
+(0.299 R + 0.587 G + 0.114 B) and thresholded: gray > 130 is background, anything else material. The loss
+of a frame is the fraction of pixels where simulated and captured masks differ (for binary masks the
+squared difference of eq. 3 is the XOR); the loss of a video is the mean over its frames.
 """
 from __future__ import annotations
 
@@ -12,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-WORKING_SIZE = (960, 540)  # (width, height)
+from mpm.params import WORKING_SIZE
+
 BACKGROUND_ABOVE = 130  # gray > 130 is background in the captured frames
 MAX_GREY_FRACTION = 0.01  # a silhouette has at most this fraction of pixels that are neither black nor white
 _BLACK, _WHITE = 16, 239  # "nearly black" / "nearly white" for the binary test (per channel)

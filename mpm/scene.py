@@ -1,15 +1,10 @@
-"""The dam-break scene of the paper (section 3.3) as the reference implementation sets it up.
+"""The dam-break scene (paper section 3.3) as the reference implementation sets it up: geometry,
+particle lattice, walls, moduli and the region the flow can reach. Pure numpy, no Taichi; SI units
+inside, setups arrive in millimetres.
 
-Pure numpy, no Taichi: geometry, particle lattice, walls, moduli, frame times and the region the flow
-can reach. SI units inside (metres, kg/m^3, Pa); setups arrive in millimetres (``width_mm``).
-
-Reference frame (REFERENCE_SPEC 2.2): origin at the bottom, back-wall, far-side-wall corner of the
-specimen; x along the width W (the flow direction, out through the open front at x = W), y up, z towards
-the camera, the near side wall at z = depth. The material fills [0, W] x [0, H] x [0, depth] and, like the
-reference, its particle block reaches ``OVERLAP_M`` into the floor, the back wall and both side walls:
-those particles sit inside the (sticking) walls, stay frozen and act as a coating. The back-wall and
-far-side-wall coating is visible in the silhouettes, the floor and near-side-wall layers are not
-(REFERENCE_SPEC 2.7). There is no gate: the front is open at t = 0 and the side walls end at x = W.
+Frame: origin at the bottom, back-wall, far-side-wall corner of the specimen; x along the width (the flow
+direction, out through the open front at x = W), y up, z towards the camera. The particle block reaches
+``OVERLAP_M`` into floor, back wall and side walls; those particles stay frozen (a coating). No gate.
 """
 from __future__ import annotations
 
@@ -18,56 +13,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-KAPPA_PA = 1.0e4  # bulk modulus kappa (section 4.2, REFERENCE_SPEC 1.2)
+from mpm.params import FPS, N_FRAMES, Setup
+
+KAPPA_PA = 1.0e4  # bulk modulus kappa (section 4.2)
 MU_PA = 1.0e3  # shear modulus mu
 GRAVITY = 9.81  # m/s^2, along -y
-FPS = 24.0  # frame k is at t = k / FPS (REFERENCE_SPEC 2.8)
-N_FRAMES = 8
-OVERLAP_M = 1.5e-3  # particle block reaches this far into floor, back wall and side walls (spec 2.2)
-SIDE_WALL_M = 3.0e-3  # thickness of the side walls (spec 2.2: 0.3 cm)
-BACK_WALL_M = 1.0e-2  # thickness of the back wall and the floor (spec 2.2: 1 cm)
+OVERLAP_M = 1.5e-3  # particle block reaches this far into floor, back wall and side walls
+SIDE_WALL_M = 3.0e-3  # thickness of the side walls
+BACK_WALL_M = 1.0e-2  # thickness of the back wall and the floor
 WALL_TOP_M = 0.2  # walls are 20 cm tall
-SETUP_RANGE_MM = (20.0, 70.0)  # paper section 3.3
-REFERENCE_PARTICLES_PER_CELL = 2  # per axis, as the reference samples (spec 2.3: cell_samples_per_dim); the solver picks its own
+REFERENCE_PARTICLES_PER_CELL = 2  # per axis, as the reference implementation samples; the solver picks its own
 MAX_PARTICLES = 6_000_000  # refuse cell widths that would need more particles than this
-
-
-def check_material(material) -> tuple[float, float, float]:
-    """(eta Pa s^n, n, sigma_y Pa) of any object with .eta .n .sigma_y; ValueError when unphysical."""
-    try:
-        eta, n, sigma_y = float(material.eta), float(material.n), float(material.sigma_y)
-    except (AttributeError, TypeError, ValueError):
-        raise ValueError("material needs numeric .eta (Pa s^n), .n and .sigma_y (Pa)") from None
-    if not (math.isfinite(eta) and eta > 0):
-        raise ValueError(f"eta must be a positive number of Pa s^n, got {eta!r}")
-    if not (math.isfinite(n) and n > 0):
-        raise ValueError(f"n must be positive, got {n!r}")
-    if not (math.isfinite(sigma_y) and sigma_y >= 0):
-        raise ValueError(f"sigma_y must be >= 0 Pa, got {sigma_y!r}")
-    return eta, n, sigma_y
-
-
-def check_setup(setup) -> tuple[float, float]:
-    """(W, H) in metres of any object with .width_mm .height_mm; ValueError outside 20-70 mm."""
-    try:
-        w, h = float(setup.width_mm), float(setup.height_mm)
-    except (AttributeError, TypeError, ValueError):
-        raise ValueError("setup needs numeric .width_mm and .height_mm") from None
-    lo, hi = SETUP_RANGE_MM
-    for name, v in (("width", w), ("height", h)):
-        if not (math.isfinite(v) and lo - 1e-9 <= v <= hi + 1e-9):
-            raise ValueError(f"setup {name} must be within {lo:g}-{hi:g} mm, got {v!r}")
-    return w * 1e-3, h * 1e-3
 
 
 def elastic_wave_speed(density: float, kappa: float = KAPPA_PA, mu: float = MU_PA) -> float:
     """P-wave speed sqrt((kappa + 4/3 mu) / rho) in m/s, the speed limit of the explicit time step."""
     return math.sqrt((kappa + 4.0 / 3.0 * mu) / density)
-
-
-def frame_times() -> np.ndarray:
-    """t_k = k / 24 s for k = 1..8 (REFERENCE_SPEC 2.8)."""
-    return np.arange(1, N_FRAMES + 1) / FPS
 
 
 @dataclass(frozen=True)
@@ -88,7 +49,8 @@ class DamBreak:
     @classmethod
     def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = 40.0, dim: int = 3,
               ppc: int = REFERENCE_PARTICLES_PER_CELL) -> "DamBreak":
-        w, h = check_setup(setup)
+        setup = Setup.of(setup).check_in_space()
+        w, h = setup.width_mm * 1e-3, setup.height_mm * 1e-3
         density = float(density)
         if not (math.isfinite(density) and density > 0):
             raise ValueError(f"density must be positive (kg/m^3), got {density!r}")
@@ -107,7 +69,7 @@ class DamBreak:
             raise ValueError(f"cell width {cell_mm:g} mm needs {scene.n_particles} particles (max {MAX_PARTICLES})")
         return scene
 
-    # --- particles (REFERENCE_SPEC 2.3) ---
+    # --- particles ---
     @property
     def spacing_m(self) -> float:
         """Particle lattice spacing: cell / ppc (the reference: 2 particles per cell per axis)."""
@@ -115,7 +77,7 @@ class DamBreak:
 
     @property
     def half_length_m(self) -> float:
-        """uGIMP particle half-length l_p = spacing / 2 (constant, REFERENCE_SPEC 2.3-2.4)."""
+        """uGIMP particle half-length l_p = spacing / 2 (constant)."""
         return 0.5 * self.spacing_m
 
     @property
@@ -129,7 +91,7 @@ class DamBreak:
 
     @property
     def overlap_m(self) -> float:
-        """How far the particle block reaches into the walls: 1.5 mm (spec 2.2), at least one spacing so
+        """How far the particle block reaches into the walls: 1.5 mm, at least one spacing so
         that coarse lattices still put a whole particle layer inside every wall."""
         return max(OVERLAP_M, self.spacing_m)
 
@@ -149,13 +111,13 @@ class DamBreak:
         return int(np.prod(self.lattice_shape()))
 
     def particles(self) -> np.ndarray:
-        """(N, dim) cell-centred lattice positions, x index fastest, no jitter (REFERENCE_SPEC 2.3)."""
+        """(N, dim) cell-centred lattice positions, x index fastest, no jitter."""
         lo, _ = self.block()
         axes = [lo[a] + self.spacing_m * (np.arange(m) + 0.5) for a, m in enumerate(self.lattice_shape())]
         grids = np.meshgrid(*axes[::-1], indexing="ij")  # last axis of the mesh = x: x varies fastest
         return np.stack([g.ravel() for g in grids[::-1]], axis=1)
 
-    # --- walls (REFERENCE_SPEC 2.2) ---
+    # --- walls ---
     def boxes(self) -> np.ndarray:
         """(4, 2, 3) static boxes [min, max] in the reference's order: floor, back, far side, near side.
 
@@ -181,7 +143,7 @@ class DamBreak:
         """(frozen, hidden) masks of particles: inside any wall; hidden by the reference's skinning rule.
 
         The reference tests the boxes in order and lets the *last* box whose x and y ranges contain the
-        particle decide: hidden when z is inside that box too (REFERENCE_SPEC 2.7). The solver applies the
+        particle decide: hidden when z is inside that box too. The solver applies the
         same rule every step; this numpy version gives the initial state.
         """
         p = np.asarray(positions, float)

@@ -1,16 +1,10 @@
 """Binary silhouettes of simulated material seen through a calibrated :class:`~mpm.camera.Camera`.
 
-The reference skins the particles (REFERENCE_SPEC 3.1) and rasterises the mesh; its surface sits about
-1.0 mm outside the particle centres at a particle spacing of 0.63 mm, and splatting each particle as a
-disk of world radius 1.0 mm reproduces the skinned silhouette to 0.03-0.10 % of the pixels (spec 9.4).
-We splat: every particle covers the pixels whose centres lie within its projected radius (exact per
-particle, no pixel snapping), then a small morphological closing fills pinholes between sparse particles.
-
-The default radius is that 1.0 mm, or 0.75 x the particle spacing for coarse particles (so that a
-lattice leaves no gaps); see :func:`default_radius_m` for the measurement behind it.
-
-Masks are boolean arrays (height, width), True = material, pixel (row, col) covering the continuous
-image area [col, col+1) x [row, row+1) of :meth:`Camera.project`.
+Each particle is splatted as a disk of world radius :func:`default_radius_m` (it covers the pixels whose
+centres lie within its projected radius), then a small morphological closing fills pinholes. This stands
+in for the reference implementation's skinned, rasterised surface. Masks are boolean (height, width),
+True = material, pixel (row, col) covering the image area [col, col+1) x [row, row+1) of
+:meth:`Camera.project`.
 """
 from __future__ import annotations
 
@@ -23,8 +17,8 @@ from skimage.draw import polygon as fill_polygon
 from skimage.morphology import disk
 
 from mpm.camera import Camera, image_size_of
+from mpm.params import WORKING_SIZE
 
-WORKING_SIZE = (960, 540)  # (width, height) at which the reference compares silhouettes
 REFERENCE_SPACING_M = 0.63e-3  # particle spacing of the reference simulations (cell 1.26 mm / 2)
 REFERENCE_RADIUS_M = 1.0e-3  # splat radius equivalent to the reference skinned surface at that spacing
 

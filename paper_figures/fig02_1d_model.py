@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm.constitutive import integrate_1d, terminal_stress, transition_time
+from mpm.shear import integrate_1d, terminal_stress, transition_time
 from paper_figures._plot import finish_stress_grid
 
 STRAIN_RATE = 10.0

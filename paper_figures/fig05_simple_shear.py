@@ -1,6 +1,6 @@
 """Paper Fig. 5: eq.-14 shear stress vs time in 3D simple shear (gamma_dot = 10 1/s), the paper's flow
 rule (purple) against Yue et al. 2015 (red); dashed: eq. 7, dotted red: the Yue closed form
-(mpm.constitutive.terminal_shear_stress). Same materials as Fig. 2.
+(mpm.shear.terminal_shear_stress). Same materials as Fig. 2.
 Usage: python -m paper_figures.fig05_simple_shear [OUT.png]
 """
 
@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm.constitutive import simple_shear, terminal_shear_stress, terminal_stress
+from mpm.shear import simple_shear, terminal_shear_stress, terminal_stress
 from paper_figures.fig02_1d_model import PANELS, STRAIN_RATE, T_END
 from paper_figures._plot import finish_stress_grid
 

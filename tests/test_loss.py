@@ -104,7 +104,7 @@ def test_shared_frames(shared_data):
     folder = shared_data / "real_world" / "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
     frames = np.stack([load_reference(folder / f"config_{k:02d}.png") for k in range(1, 9)])
     fractions = frames.mean(axis=(1, 2))
-    assert np.all((fractions > 0.017) & (fractions < 0.22))  # spec 3.5: material is 1.7-22 % of the image
+    assert np.all((fractions > 0.017) & (fractions < 0.22))  # material is 1.7-22 % of the image
     assert np.all(np.diff(fractions) > 0)  # the puddle spreads
     losses = frame_losses(frames[:-1], frames[1:])
     assert np.all((losses > 0) & (losses < 0.02))

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from mpm import scene as sc
+from mpm.params import Material, Setup, frame_times
 
 
 def _scene(w_mm, h_mm, cell_mm=1.26, depth_mm=40.0, dim=3, density=1000.0):
@@ -16,7 +17,7 @@ def _scene(w_mm, h_mm, cell_mm=1.26, depth_mm=40.0, dim=3, density=1000.0):
 @pytest.mark.parametrize("w, h, shape", [(20, 20, (35, 35, 69)), (25, 20, (43, 35, 69)), (70, 70, (114, 114, 69)),
                                          (20, 21, (35, 36, 69))])
 def test_lattice_counts_match_the_reference(w, h, shape):
-    """REFERENCE_SPEC 2.3: nd = ceil((max - min) / (dx/2)) per axis at the paper's 1.26 mm cells."""
+    """The reference implementation's lattice: nd = ceil((max - min) / (dx/2)) per axis at 1.26 mm cells."""
     s = _scene(w, h)
     assert s.lattice_shape() == shape
     assert s.n_particles == math.prod(shape)
@@ -31,7 +32,7 @@ def test_lattice_counts_match_the_reference(w, h, shape):
 
 
 def test_walls_freeze_the_overlap_and_hide_floor_and_near_wall():
-    """REFERENCE_SPEC 2.7: all overlap layers frozen; floor and near-side-wall layers hidden, back-wall and
+    """All overlap layers frozen; floor and near-side-wall layers hidden, back-wall and
     far-side-wall coating visible; the material itself is neither."""
     s = _scene(20, 21)
     p = s.particles()
@@ -39,7 +40,7 @@ def test_walls_freeze_the_overlap_and_hide_floor_and_near_wall():
     d = s.depth_m
     inside = (p[:, 0] > 0) & (p[:, 1] > 0) & (p[:, 2] > 0) & (p[:, 2] < d)
     assert not frozen[inside].any() and not hidden[inside].any()
-    # the block's last column overshoots x = W (spec 2.3), past the side walls' end: free there
+    # the block's last column overshoots x = W, past the side walls' end: free there
     assert frozen[~inside & (p[:, 0] <= s.width_m)].all()
     assert not frozen[p[:, 0] > s.width_m][p[p[:, 0] > s.width_m, 1] > 0].any()
     floor = p[:, 1] < 0
@@ -63,7 +64,7 @@ def test_plane_strain_section_meets_only_floor_and_back_wall():
 
 def test_wave_speed_frames_and_reach():
     assert sc.elastic_wave_speed(1000.0) == pytest.approx(math.sqrt((1e4 + 4e3 / 3) / 1000.0))
-    assert np.allclose(sc.frame_times(), np.arange(1, 9) / 24)
+    assert np.allclose(frame_times(), np.arange(1, 9) / 24)
     s = _scene(30, 20, cell_mm=3.0)
     lo, hi = s.reach()
     blo, bhi = s.block()
@@ -95,8 +96,23 @@ def test_bad_scene_input_is_a_one_line_value_error(kw, match):
     assert "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("mat, match", [((0.0, 1.0, 0.0), "eta"), ((1.0, 0.0, 0.0), "n"), ((1.0, 1.0, -1.0), "sigma_y"),
-                                        ((float("inf"), 1.0, 0.0), "eta")])
-def test_unphysical_material_is_rejected(mat, match):
-    with pytest.raises(ValueError, match=match):
-        sc.check_material(NS(eta=mat[0], n=mat[1], sigma_y=mat[2]))
+@pytest.mark.parametrize("mat, match", [((0.0, 1.0, 0.0), "eta=0 Pa s"), ((1.0, 0.0, 0.0), "n=0 is"),
+                                        ((1.0, 1.0, -1.0), "sigma_y=-1 Pa"), ((float("inf"), 1.0, 0.0), "eta=inf")])
+def test_unphysical_material_is_one_line_with_the_same_wording_everywhere(mat, match):
+    from mpm.shear import simple_shear
+
+    messages = []
+    for make in (lambda: Material(*mat), lambda: Material.of(NS(eta=mat[0], n=mat[1], sigma_y=mat[2])),
+                 lambda: simple_shear([1.0, mat[0]], [1.0, mat[1]], [0.0, mat[2]], t_end=1e-3)):
+        with pytest.raises(ValueError, match=match) as e:
+            make()
+        messages.append(str(e.value))
+    assert len(set(messages)) == 1 and "unphysical" in messages[0] and "\n" not in messages[0]
+
+
+def test_setup_outside_the_range_has_the_same_wording_everywhere():
+    with pytest.raises(ValueError) as built:
+        sc.DamBreak.build(NS(width_mm=75, height_mm=30), density=1000.0, cell_mm=3.0)
+    with pytest.raises(ValueError) as checked:
+        Setup(75, 30).check_in_space()
+    assert str(built.value) == str(checked.value) == "width_mm=75 lies outside the setup space 20..70 mm"

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mpm.params import FLOW_RULES
+
 HELP = """Simulate a Herschel-Bulkley dam-break for 1/3 s (8 frames at 24 fps).
 Units: --material ETA,N,SIGMA_Y in SI (Pa s^n, -, Pa); --setup WIDTHxHEIGHT in mm (20..70);
 --density in kg/m^3; --cell-mm grid cell width in mm."""
@@ -27,7 +29,7 @@ def register(sub) -> None:
     p.add_argument("--cell-mm", type=float, default=None, help="grid cell width in mm (default: the solver's)")
     p.add_argument("--ppc", type=int, default=None,
                    help="particles per cell per axis, 1-4 (default: the solver's; the paper: --cell-mm 1.26 --ppc 2)")
-    p.add_argument("--flow-rule", choices=("paper", "yue2015"), default="paper")
+    p.add_argument("--flow-rule", choices=FLOW_RULES, default=FLOW_RULES[0])
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.set_defaults(func=run)
 

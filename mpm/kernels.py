@@ -1,0 +1,388 @@
+"""Compiled MPM step kernel and its reusable device buffers (Taichi), one per dim and precision.
+
+One ``step`` launch advances the dam-break by one time step (paper section 4, appendix B):
+1. P2G: grid momentum += w m (v + C (x_i - x_p)) - dt V_p tau grad w, grid mass += w m (uGIMP weights,
+   APIC transfer, Kirchhoff stress of ``mpm.constitutive.kirchhoff_stress``, initial particle volume V_p).
+2. Grid: p += dt m g; nodes inside a wall box get p = 0 (sticking); v_i = p / m.
+3. G2P: v_p = sum w v_i, C_p = sum v_i (x) grad w, elastic predictor b* = F b F^T with F = I + dt C
+   (eq. 52), plastic correction ``mpm.constitutive.return_mapping`` (eq. 57); particles inside a wall box
+   are frozen (v = 0, C = 0); advection x += dt v.
+The grid is a dense window over the particles' stencil bounding box, recomputed every step; grid nodes
+sit at integer multiples of the cell width (the wall planes x = 0, y = 0, z = 0 are nodes).
+"""
+import os
+
+import numpy as np
+import taichi as ti
+
+from mpm import runtime
+
+# layout of the small int32 control array ``win``
+OX, NX, COUNT, OVERFLOW, ERROR, DONE, NEED = 0, 3, 6, 7, 8, 9, 10
+HIDDEN, PLASTIC, FROZEN = 1, 2, 4  # particle flag bits
+ERRORS = {1: "a particle position became NaN", 2: "particles left the region the flow can reach"}
+
+_ENGINES: dict = {}
+
+
+class Engine:
+    """Compiled step kernel and reusable device buffers for one (dim, precision) in one Taichi program."""
+
+    def __init__(self, dim: int, precision: str, prog):
+        self.dim, self.precision, self.prog = dim, precision, prog
+        self.dtype = ti.f32 if precision == "f32" else ti.f64
+        self.np_dtype = np.float32 if precision == "f32" else np.float64
+        # GPU: atomics and one grid copy; $VIRHEO_MPM_ATOMIC=1 forces that path on the CPU (for testing)
+        self.atomic = not runtime.on_cpu() or os.environ.get("VIRHEO_MPM_ATOMIC") == "1"
+        self.tasks = 1 if self.atomic else runtime.threads()
+        self.step, self.init_bbox, self.grid_mass = build_kernels(dim, self.tasks, self.atomic)
+        self.cap_p = 0
+        self.cap_g = 0
+        self.win = ti.ndarray(ti.i32, 16)
+        self.acc = ti.ndarray(ti.i32, (self.tasks, 6))
+        self.accf = ti.ndarray(self.dtype, self.tasks)
+        self.boxes = ti.ndarray(self.dtype, (4, 2, 3))
+        self.lim = ti.ndarray(ti.i32, 6)
+        self.out = ti.ndarray(self.dtype, 1)
+
+    def ensure_particles(self, n: int) -> None:
+        if n <= self.cap_p:
+            return
+        cap = max(n, int(1.25 * self.cap_p))
+        d = self.dim
+        self.x = ti.Vector.ndarray(d, self.dtype, cap)
+        self.v = ti.Vector.ndarray(d, self.dtype, cap)
+        self.C = ti.Matrix.ndarray(d, d, self.dtype, cap)
+        self.be = ti.Matrix.ndarray(3, 3, self.dtype, cap)
+        self.flags = ti.ndarray(ti.i32, cap)
+        self.cap_p = cap
+
+    def ensure_grid(self, nodes: int) -> None:
+        if nodes <= self.cap_g:
+            return
+        cap = max(nodes, int(1.5 * self.cap_g), 4096)
+        self.grid = ti.Vector.ndarray(self.dim + 1, self.dtype, self.tasks * cap)
+        self.grid.fill(0)
+        self.cap_g = cap
+
+
+def engine(dim: int, precision: str) -> Engine:
+    prog = runtime.ensure_taichi(precision)
+    key = (dim, precision)
+    eng = _ENGINES.get(key)
+    if eng is None or eng.prog is not prog:
+        if eng is not None:  # Taichi was re-initialised: every engine of the old program is void
+            _ENGINES.clear()
+        eng = _ENGINES[key] = Engine(dim, precision, prog)
+    return eng
+
+
+
+def build_kernels(dim: int, tasks: int, atomic: bool):
+    """The step kernel for ``dim`` with ``tasks`` grid copies (CPU) or atomics (GPU)."""
+    from mpm.constitutive import kirchhoff_stress, return_mapping
+
+    D = dim
+    nd = ti.types.ndarray()
+
+    @ti.func
+    def ugimp(X, l):
+        """uGIMP weights per axis for stencil nodes base + 0..2.
+
+        X: position in cell units relative to the window origin, l = l_p / dx <= 1/2 (1/4 with two
+        particles per cell). Returns base, fx = X - base in [l, 1 + l), the normalised 1D factors
+        N = S / (2 l_p) (they sum to 1) and dN/dx_p in cell units. With r = fx - o = (x_p - x_i)/dx:
+        N = 1 - (l^2 + r^2) / (2 l) for |r| < l, 1 - |r| for |r| < 1 - l, (1 + l - |r|)^2 / (4 l) for
+        |r| < 1 + l, else 0; node 0 sees r in [l, 1 + l), node 1 [l - 1, l), node 2 [l - 2, l - 1).
+        """
+        base = ti.floor(X - l, ti.i32)
+        fx = X - base
+        q = 0.25 / l
+        w = ti.Matrix.zero(float, D, 3)
+        dw = ti.Matrix.zero(float, D, 3)
+        for a in ti.static(range(D)):
+            r0 = fx[a]  # node 0
+            if r0 < 1.0 - l:
+                w[a, 0] = 1.0 - r0
+                dw[a, 0] = -1.0
+            else:
+                e0 = 1.0 + l - r0
+                w[a, 0] = q * e0 * e0
+                dw[a, 0] = -2.0 * q * e0
+            r1 = fx[a] - 1.0  # node 1
+            if r1 > -l:
+                w[a, 1] = 1.0 - 2.0 * q * (l * l + r1 * r1)
+                dw[a, 1] = -4.0 * q * r1
+            else:
+                w[a, 1] = 1.0 + r1
+                dw[a, 1] = 1.0
+            e2 = l - 1.0 + fx[a]  # node 2: 1 + l - |r2|
+            if e2 > 0.0:
+                w[a, 2] = q * e2 * e2
+                dw[a, 2] = 2.0 * q * e2
+        return base, fx, w, dw
+
+    @ti.func
+    def window(win: ti.template()):
+        """Origin (in cells: node (0,..) of the window sits at origin * dx) and flat-index strides."""
+        origin = ti.Vector([win[OX + a] for a in ti.static(range(D))])
+        stride = ti.Vector.one(ti.i32, D)
+        for a in ti.static(range(D - 2, -1, -1)):
+            stride[a] = stride[a + 1] * win[NX + a + 1]
+        return origin, stride
+
+    @ti.func
+    def stencil(w, dw, off: ti.template()):
+        """Weight and gradient (cell units) of stencil node ``off``: tensor products of the 1D factors."""
+        wt = 1.0
+        grad = ti.Vector.one(float, D)
+        for a in ti.static(range(D)):
+            wt *= w[a, off[a]]
+            for b in ti.static(range(D)):
+                grad[b] *= dw[a, off[a]] if a == b else w[a, off[a]]
+        return wt, grad
+
+    @ti.func
+    def in_box(boxes: ti.template(), b: ti.template(), pos, z):
+        """(inside x and y ranges, inside z range) of static box b, inclusive bounds."""
+        in_xy = (boxes[b, 0, 0] <= pos[0] <= boxes[b, 1, 0]) and (boxes[b, 0, 1] <= pos[1] <= boxes[b, 1, 1])
+        in_z = boxes[b, 0, 2] <= z <= boxes[b, 1, 2]
+        return in_xy, in_z
+
+    @ti.func
+    def zcoord(pos, zmid):
+        z = zmid
+        if ti.static(D == 3):
+            z = pos[2]
+        return z
+
+    @ti.func
+    def block(m):
+        """Upper-left D x D block of a 3x3 matrix."""
+        r = ti.Matrix.zero(float, D, D)
+        for i, j in ti.static(ti.ndrange(D, D)):
+            r[i, j] = m[i, j]
+        return r
+
+    @ti.func
+    def embed(m):
+        """D x D velocity gradient as 3x3 (plane strain: zero out-of-plane rows and columns)."""
+        r = ti.Matrix.zero(float, 3, 3)
+        for i, j in ti.static(ti.ndrange(D, D)):
+            r[i, j] = m[i, j]
+        return r
+
+    @ti.func
+    def p2g_particle(p, t, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
+                     grid: ti.template(), origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu, lh):
+        X = x[p] * inv_dx - origin
+        base, fx, w, dw = ugimp(X, lh)
+        tau = kirchhoff_stress(be[p], kappa, mu)
+        S = (-dt * vol * inv_dx) * block(tau)  # force -V_p tau grad w (grad in cells)
+        mv = mp * v[p]
+        mC = (mp * dx) * C[p]
+        node0 = base.dot(stride)
+        if ti.static(not atomic):
+            node0 += t * capg
+        for off in ti.static(ti.grouped(ti.ndrange(*([3] * D)))):
+            wt, grad = stencil(w, dw, off)
+            mom = wt * (mv + mC @ (off - fx)) + S @ grad  # APIC: m (v + C (x_i - x_p))
+            contrib = ti.Vector.zero(float, D + 1)
+            for a in ti.static(range(D)):
+                contrib[a] = mom[a]
+            contrib[D] = wt * mp
+            k = node0 + off.dot(stride)
+            if ti.static(atomic):
+                grid[k] += contrib
+            else:
+                grid[k] = grid[k] + contrib  # own grid copy per task: no atomics needed
+
+    @ti.func
+    def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
+                     flags: ti.template(), grid: ti.template(), boxes: ti.template(), origin, stride, dt,
+                     inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template()):
+        xp = x[p]
+        X = xp * inv_dx - origin
+        base, fx, w, dw = ugimp(X, lh)
+        vp = ti.Vector.zero(float, D)
+        B = ti.Matrix.zero(float, D, D)
+        node0 = base.dot(stride)
+        for off in ti.static(ti.grouped(ti.ndrange(*([3] * D)))):
+            wt, grad = stencil(w, dw, off)
+            g = grid[node0 + off.dot(stride)]
+            gv = ti.Vector([g[a] for a in ti.static(range(D))])
+            vp += wt * gv
+            B += gv.outer_product(grad)
+        B *= inv_dx  # C_p = grad v: the grid velocity gradient, not Jiang et al.'s B D^-1
+        b_old = be[p]
+        F = ti.Matrix.identity(float, 3) + dt * embed(B)
+        b_trial = F @ b_old @ F.transpose()  # elastic predictor, eq. 52 in its F b F^T form
+        b_new = return_mapping(b_trial, b_old, mu, eta, n, sy, dt, yue)  # eq. 57; identity when elastic
+        f = flags[p]
+        if (b_new != b_trial).any():
+            f |= PLASTIC
+        be[p] = b_new
+        # walls, tested at the pre-advection position, as the reference implementation does
+        z = zcoord(xp, zmid)
+        frozen = False
+        hidden = (f & HIDDEN) != 0
+        for b in ti.static(range(4)):
+            in_xy, in_z = in_box(boxes, b, xp, z)
+            if in_xy:
+                hidden = in_z  # the last box containing (x, y) decides visibility
+                if in_z:
+                    frozen = True
+        f &= ~(HIDDEN | FROZEN)
+        if hidden:
+            f |= HIDDEN
+        if frozen:
+            f |= FROZEN
+            vp = ti.Vector.zero(float, D)
+            B = ti.Matrix.zero(float, D, D)
+        flags[p] = f
+        xn = xp + dt * vp
+        x[p] = xn
+        v[p] = vp
+        C[p] = B
+        return xn, vp
+
+    @ti.kernel
+    def step(x: nd, v: nd, C: nd, be: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd, boxes: nd,
+             lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float, kappa: float,
+             mu: float, eta: float, nn: float, sy: float, gravity: float, zmid: float,
+             lh: float, yue: ti.template()):
+        inv_dx = 1.0 / dx
+        # 1. clear the previous window in every grid copy
+        for i in range(win[COUNT]):
+            for t in ti.static(range(tasks)):
+                grid[t * capg + i] = ti.Vector.zero(float, D + 1)
+        # 2. the new window: stencil bounding box of the particles (from the last G2P)
+        for _ in range(1):
+            if win[ERROR] == 0:
+                lo = ti.Vector([acc[0, a] for a in ti.static(range(D))])
+                hi = ti.Vector([acc[0, 3 + a] for a in ti.static(range(D))])
+                for t in range(1, tasks):
+                    for a in ti.static(range(D)):
+                        lo[a] = ti.min(lo[a], acc[t, a])
+                        hi[a] = ti.max(hi[a], acc[t, 3 + a])
+                count = 1
+                for a in ti.static(range(D)):
+                    if lo[a] < lim[a] or hi[a] > lim[3 + a]:
+                        win[ERROR] = 2
+                    count *= hi[a] + 3 - lo[a]
+                if win[ERROR] == 0:
+                    if count > capg:
+                        win[OVERFLOW] = 1
+                        win[NEED] = count
+                        win[COUNT] = 0
+                    else:
+                        for a in ti.static(range(D)):
+                            win[OX + a] = lo[a]
+                            win[NX + a] = hi[a] + 3 - lo[a]
+                        win[COUNT] = count
+                        if ti.static(atomic):  # G2P accumulates the next box atomically
+                            for a in ti.static(range(D)):
+                                acc[0, a] = 2147483647
+                                acc[0, 3 + a] = -2147483647
+                            accf[0] = 0.0
+        # 3. P2G
+        if ti.static(atomic):
+            for p in range(n):
+                if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                    origin, stride = window(win)
+                    p2g_particle(p, 0, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu,
+                                 lh)
+        else:
+            for t in range(tasks):
+                if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                    origin, stride = window(win)
+                    for p in range(t * n // tasks, (t + 1) * n // tasks):
+                        p2g_particle(p, t, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu,
+                                 lh)
+        # 4. grid update: gravity, sticking walls, velocity (copy 0 holds (v, m) afterwards)
+        for i in range(win[COUNT]):
+            g = grid[i]
+            for t in ti.static(range(1, tasks)):
+                g += grid[t * capg + i]
+            m = g[D]
+            if m > 0:
+                local = ti.Vector.zero(ti.i32, D)
+                rest = i
+                for a in ti.static(range(D - 1, -1, -1)):
+                    local[a] = rest % win[NX + a]
+                    rest = rest // win[NX + a]
+                pos = ti.Vector([(local[a] + win[OX + a]) * dx for a in ti.static(range(D))])
+                mom = ti.Vector([g[a] for a in ti.static(range(D))])
+                mom[1] -= dt * m * gravity
+                z = zcoord(pos, zmid)
+                for b in ti.static(range(4)):
+                    in_xy, in_z = in_box(boxes, b, pos, z)
+                    if in_xy and in_z:
+                        mom = ti.Vector.zero(float, D)  # sticking wall
+                vel = mom / m
+                for a in ti.static(range(D)):
+                    g[a] = vel[a]
+            grid[i] = g
+        # 5. G2P, constitutive update, walls, advection; bounding box and speed for the next step
+        if ti.static(atomic):
+            for p in range(n):
+                if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                    origin, stride = window(win)
+                    xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta, nn,
+                                          sy, zmid, lh, yue)
+                    if (xn != xn).any():
+                        win[ERROR] = 1
+                    base = ti.floor(xn * inv_dx - lh, ti.i32)
+                    for a in ti.static(range(D)):
+                        ti.atomic_min(acc[0, a], base[a])
+                        ti.atomic_max(acc[0, 3 + a], base[a])
+                    ti.atomic_max(accf[0], vp.norm())
+        else:
+            for t in range(tasks):
+                if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                    lo = ti.Vector([2147483647] * D)
+                    hi = ti.Vector([-2147483647] * D)
+                    vmax2 = 0.0
+                    bad = 0
+                    origin, stride = window(win)
+                    for p in range(t * n // tasks, (t + 1) * n // tasks):
+                        xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta,
+                                              nn, sy, zmid, lh, yue)
+                        if (xn != xn).any():
+                            bad = 1
+                        base = ti.floor(xn * inv_dx - lh, ti.i32)
+                        lo = ti.min(lo, base)
+                        hi = ti.max(hi, base)
+                        vmax2 = ti.max(vmax2, vp.norm_sqr())
+                    for a in ti.static(range(D)):
+                        acc[t, a] = lo[a]
+                        acc[t, 3 + a] = hi[a]
+                    accf[t] = ti.sqrt(vmax2)
+                    if bad:
+                        win[ERROR] = 1
+        # 6. count the completed step
+        for _ in range(1):
+            if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                win[DONE] += 1
+
+    @ti.kernel
+    def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, lh: float):
+        for t in range(tasks):
+            lo = ti.Vector([2147483647] * D)
+            hi = ti.Vector([-2147483647] * D)
+            for p in range(t * n // tasks, (t + 1) * n // tasks):
+                base = ti.floor(x[p] / dx - lh, ti.i32)
+                lo = ti.min(lo, base)
+                hi = ti.max(hi, base)
+            for a in ti.static(range(D)):
+                acc[t, a] = lo[a]
+                acc[t, 3 + a] = hi[a]
+            accf[t] = 0.0
+
+    @ti.kernel
+    def grid_mass(grid: nd, win: nd, out: nd):
+        out[0] = 0.0
+        for i in range(win[COUNT]):
+            out[0] += grid[i][D]
+
+    return step, init_bbox, grid_mass
