@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,22 +21,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from mpm import experiment  # noqa: E402
 from mpm.datasets import first_estimates, real_world_dir  # noqa: E402
 from mpm.loss import frame_losses  # noqa: E402
+from mpm.params import Material  # noqa: E402
 from mpm.silhouette import default_radius_m, render_frames  # noqa: E402
 
 WORCESTER_2 = "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
 
 
-@dataclass(frozen=True)
-class _Material:
-    eta: float
-    n: float
-    sigma_y: float
-
-
-def setup1_estimate(material_name: str) -> _Material:
+def setup1_estimate(material_name: str) -> Material:
     for row in first_estimates():
         if row["material"] == material_name:
-            return _Material(float(row["estimate_after_setup1_eta_Pa_s_n"]), float(row["estimate_after_setup1_n"]),
+            return Material(float(row["estimate_after_setup1_eta_Pa_s_n"]), float(row["estimate_after_setup1_n"]),
                              float(row["estimate_after_setup1_sigma_y_Pa"]))
     raise ValueError(f"no setup-1 estimate for {material_name!r}")
 

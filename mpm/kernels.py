@@ -67,6 +67,7 @@ class Engine:
 
 
 def engine(dim: int, precision: str) -> Engine:
+    """The engine for ``dim`` and ``precision``, built once per Taichi program and then reused."""
     prog = runtime.ensure_taichi(precision)
     key = (dim, precision)
     eng = _ENGINES.get(key)
@@ -77,9 +78,9 @@ def engine(dim: int, precision: str) -> Engine:
     return eng
 
 
-
 def build_kernels(dim: int, tasks: int, atomic: bool):
-    """The step kernel for ``dim`` with ``tasks`` grid copies (CPU) or atomics (GPU)."""
+    """The step kernel for ``dim``: on the CPU, ``tasks`` slices of the particles each scatter into their own
+    grid copy without atomics; on the GPU (``atomic``) one grid copy with atomic adds."""
     from mpm.constitutive import kirchhoff_stress, return_mapping
 
     D = dim

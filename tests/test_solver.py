@@ -12,6 +12,7 @@ import pytest
 
 import mpm
 from mpm import scene as sc
+from mpm import solver
 
 SETUP = NS(width_mm=20, height_mm=20)
 RHO = 1000.0
@@ -39,7 +40,14 @@ def test_frames_times_and_visibility():
         box = f[f[:, 0] < w - CELL * 1e-3]  # inside the box: floor and near-wall layers are hidden
         assert (box[:, 1] > 0).all() and (box[:, 2] < d).all()
         assert (f[:, 0] < 0).any() and (f[:, 2] < 0).any()  # back-wall and far-wall coating stay visible
-    assert sim.stats["frozen_count"] > 0 and sim.stats["steps"] > 100
+    st = sim.stats
+    scene = sc.DamBreak.build(SETUP, density=RHO, cell_mm=CELL, ppc=st["ppc"])
+    frozen0 = scene.frozen_and_hidden(scene.particles())[0].sum()
+    assert st["n_particles"] == scene.n_particles
+    assert frozen0 <= st["frozen_count"] < st["n_particles"] / 2  # sticking walls keep their coating
+    # CFL: no step longer than CFL dx / c, and the steps add up to the 1/3 s of the video
+    assert st["dt_max"] <= solver.CFL * CELL * 1e-3 / st["wave_speed"] * (1 + 1e-9)
+    assert st["steps"] * st["dt_min"] <= 1 / 3 + 1e-9 <= st["steps"] * st["dt_max"] + 2e-9
     assert sim.silhouettes.shape == (8, 135, 240) and sim.silhouettes.dtype == bool
     area = sim.silhouettes.reshape(8, -1).mean(1)
     assert (area > 0.005).all() and area[-1] > area[0]  # the material spreads in the image
@@ -132,8 +140,6 @@ def test_two_particles_per_axis_sample_the_same_mass_and_report_progress():
 
 
 def test_blow_up_raises_simulation_error(monkeypatch):
-    from mpm import solver
-
     monkeypatch.setattr(solver, "CFL", 4.0)  # far beyond the elastic stability limit
     with pytest.raises(solver.SimulationError) as e:
         mpm.simulate(NS(eta=0.3, n=1.0, sigma_y=0.0), SETUP, density=RHO, cell_mm=CELL)
