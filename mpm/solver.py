@@ -14,7 +14,7 @@ import numpy as np
 from mpm import kernels as kn
 from mpm import runtime
 from mpm import scene as sc
-from mpm.params import FLOW_RULES, FPS, N_FRAMES, Material, check_flow_rule, frame_times
+from mpm.params import FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule, frame_times
 
 DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/performance.md
 CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6-0.65 still stable, 0.8 blows up (docs/performance.md)
@@ -40,7 +40,6 @@ class Simulation:
     stats: dict = field(default_factory=dict)
 
 
-
 def _check_options(dim, flow_rule, precision, image_size):
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
@@ -52,7 +51,7 @@ def _check_options(dim, flow_rule, precision, image_size):
 
 
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
-             depth_mm=40.0, image_size=(960, 540), precision="f32", ppc=None, progress=None) -> Simulation:
+             depth_mm=40.0, image_size=WORKING_SIZE, precision="f32", ppc=None, progress=None) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
@@ -60,7 +59,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     ppc: particles per cell per axis (default ``PARTICLES_PER_CELL``; the paper's discretisation is
     cell_mm=1.26, ppc=2); depth_mm: distance between the side walls;
     camera: a ``mpm.camera.Camera`` to also render silhouettes at image_size = (width, height);
-    precision: "f32" or "f64"; flow_rule: "paper" or "yue2015"; progress: optional callable
+    precision: "f32" or "f64"; flow_rule: one of ``FLOW_RULES``; progress: optional callable
     ``progress(frames_done, 8)`` called after each simulated frame.
     Raises ValueError for bad input, SimulationError when the run blows up.
     """
