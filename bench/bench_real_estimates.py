@@ -24,7 +24,7 @@ from mpm.datasets import manifest, real_world_dir, require_data_dir
 from mpm.store import Store
 from similarity import estimate as E
 from similarity.space import Material
-from studies.rheometer import MATERIALS, log_stress_rms, read_flow_curve
+from surrogate.rheometer import MATERIALS, log_stress_rms, read_flow_curve
 
 
 def main(argv=None) -> int:

@@ -75,7 +75,7 @@ class Case:
         }
 
 
-def run_study(*, materials: int = 6, runs: int = 3, preset="quick", generations: int | None = None, seed: int = 0,
+def run_study(*, materials: int = 6, runs: int = 3, preset="demo", generations: int | None = None, seed: int = 0,
               density: float = 1000.0, store=None, executor=None, progress=None,
               simulator: str = E.batch.DEFAULT_SIMULATOR) -> list[Case]:
     preset = E.get_preset(preset)
@@ -174,5 +174,5 @@ def timed_study(out, **kw) -> dict:
     t0 = time.perf_counter()
     cases = run_study(**kw)
     settings = {k: v for k, v in kw.items() if k in ("materials", "runs", "generations", "seed", "density", "simulator")}
-    settings["preset"] = E.get_preset(kw.get("preset", "quick")).name
+    settings["preset"] = E.get_preset(kw.get("preset", "demo")).name
     return write(out, cases, settings=settings, wall_seconds=time.perf_counter() - t0)
