@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="real_estimates.json")
     p.add_argument("--only", nargs="*", default=None, help="material names (manifest spelling) to run")
     args = p.parse_args(argv)
-    preset = dataclasses.replace(E.get_preset("quick"), name=f"real-{args.cell_mm}mm", cell_mm=args.cell_mm,
+    preset = dataclasses.replace(E.get_preset("demo"), name=f"real-{args.cell_mm}mm", cell_mm=args.cell_mm,
                                  generations=args.generations)
     store = Store(args.store)
     curves = {MATERIALS[f.name.split("_")[0]]: read_flow_curve(f)

@@ -177,11 +177,13 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
 def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: int, generations: int, store: Store,
               executor=None, simulator: str = batch.DEFAULT_SIMULATOR,
               progress: Callable[[dict], None] | None = None, stage_index: int = 1,
-              screened: Sequence[Sequence[float]] = (), finish: bool = False) -> Stage:
+              screened: Sequence[Sequence[float]] = (), screened_simulations: int | None = None,
+              finish: bool = False) -> Stage:
     """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0``; resumable.
 
     ``screened``: rows [x0, x1, x2, loss] already evaluated on these experiments (:func:`warm_start`);
-    they count as the stage's evaluations (one new simulation each) and compete for its best candidate.
+    they count as the stage's evaluations (``screened_simulations`` new simulations, by default one each)
+    and compete for its best candidate.
     """
     t0 = time.perf_counter()
     objective = Objective(experiments, model, simulator, store, executor, progress)
@@ -190,8 +192,9 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
     if isinstance(state, StageState) and state.result is not None:
         return state.result
     if not isinstance(state, StageState):
-        state = StageState(es=_strategy(x0, sigma0, POPSIZE, seed), evaluations=len(screened),
-                           simulations=len(screened), screened=[list(r) for r in screened])
+        sims = len(screened) if screened_simulations is None else int(screened_simulations)
+        state = StageState(es=_strategy(x0, sigma0, POPSIZE, seed), evaluations=len(screened), simulations=sims,
+                           screened=[list(r) for r in screened])
         for r in screened:
             if np.isfinite(r[3]):
                 state.offer(np.asarray(r[:3], float), r[3])

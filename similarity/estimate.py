@@ -153,7 +153,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
             x0, screened = warm_start(stages[-1], experiments[:n], model=preset.finish, **common)
             stage = run_stage(experiments[:n], x0=x0, sigma0=preset.sigma0 * (2.0 / 3.0) ** n, model=preset.finish,
                               seed=seed + n, generations=preset.finish_generations, stage_index=n + 1,
-                              screened=screened, finish=True, **common)
+                              screened=screened, screened_simulations=n * len(screened), finish=True, **common)
             finish_stage(stage, [setup_of(e) for e in experiments[:n]])
     finally:
         if own:
