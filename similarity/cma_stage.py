@@ -96,8 +96,12 @@ class Objective:
         return [simulation_request(m, e, self.model, self.simulator) for e in self.experiments]
 
     def __call__(self, X) -> np.ndarray:
-        jobs = [(req, eid, e.frames) for x in X for req, eid, e in zip(self.requests(x), self.exp_ids, self.experiments)]
-        tick = (lambda req, res, cached: self.progress({"event": "simulation", "cached": cached})) if self.progress else None
+        jobs = [(req, eid, e.frames) for x in X
+                for req, eid, e in zip(self.requests(x), self.exp_ids, self.experiments)]
+        tick = None
+        if self.progress:
+            def tick(req, res, cached):
+                self.progress({"event": "simulation", "cached": cached})
         losses = batch.evaluate_losses(jobs, store=self.store, executor=self.executor, on_result=tick)
         return losses.reshape(len(X), len(self.experiments)).mean(axis=1)
 

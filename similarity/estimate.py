@@ -17,11 +17,9 @@ import numpy as np
 
 from mpm import batch
 from mpm.store import Store
-from similarity.cma_stage import (POPSIZE, STALL_DRAWS, WARM_START_SPACING, Stage, StageState,  # noqa: F401
-                                  run_stage, warm_start)
+from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
-from similarity.presets import (PRESETS, Discretisation, Preset, get_preset, setup_of,  # noqa: F401
-                                simulation_request)
+from similarity.presets import PRESETS, Preset, get_preset, setup_of, simulation_request  # noqa: F401
 from similarity.space import LOWER, UPPER, Material, Setup, center, denormalize, e_rel, normalize
 
 BOUND_MARGIN = 0.02  # an estimate this close to a bound (fraction of the parameter's range) gets a warning
