@@ -24,7 +24,7 @@ from mpm.datasets import manifest, real_world_dir, require_data_dir
 from mpm.store import Store
 from similarity import estimate as E
 from similarity.space import Material
-from studies.rheometer import MATERIALS, log_stress_rms, read_flow_curve
+from surrogate.rheometer import MATERIALS, log_stress_rms, read_flow_curve
 
 
 def main(argv=None) -> int:
@@ -37,7 +37,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="real_estimates.json")
     p.add_argument("--only", nargs="*", default=None, help="material names (manifest spelling) to run")
     args = p.parse_args(argv)
-    preset = dataclasses.replace(E.get_preset("quick"), name=f"real-{args.cell_mm}mm", cell_mm=args.cell_mm,
+    preset = dataclasses.replace(E.get_preset("demo"), name=f"real-{args.cell_mm}mm", cell_mm=args.cell_mm,
                                  generations=args.generations)
     store = Store(args.store)
     curves = {MATERIALS[f.name.split("_")[0]]: read_flow_curve(f)

@@ -35,7 +35,7 @@ class Experiment:
     """One dam-break recording. Setup in mm, everything else SI; frames are bool masks (True = material)."""
 
     name: str
-    path: Path
+    path: Path | None  # None: emulated footage (similarity.emulation)
     width_mm: float
     height_mm: float
     depth_mm: float

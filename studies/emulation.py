@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mpm import batch
 from similarity import estimate as E
 from similarity.space import Material, Setup, SETUP_RANGE_MM, denormalize, e_rel
 from studies.report import save_figure, write_json
@@ -75,9 +76,9 @@ class Case:
         }
 
 
-def run_study(*, materials: int = 6, runs: int = 3, preset="quick", generations: int | None = None, seed: int = 0,
+def run_study(*, materials: int = 6, runs: int = 3, preset="demo", generations: int | None = None, seed: int = 0,
               density: float = 1000.0, store=None, executor=None, progress=None,
-              simulator: str = E.batch.DEFAULT_SIMULATOR) -> list[Case]:
+              simulator: str = batch.DEFAULT_SIMULATOR) -> list[Case]:
     preset = E.get_preset(preset)
     g = int(generations or preset.generations)
     rng = np.random.default_rng(seed)
@@ -174,5 +175,5 @@ def timed_study(out, **kw) -> dict:
     t0 = time.perf_counter()
     cases = run_study(**kw)
     settings = {k: v for k, v in kw.items() if k in ("materials", "runs", "generations", "seed", "density", "simulator")}
-    settings["preset"] = E.get_preset(kw.get("preset", "quick")).name
+    settings["preset"] = E.get_preset(kw.get("preset", "demo")).name
     return write(out, cases, settings=settings, wall_seconds=time.perf_counter() - t0)

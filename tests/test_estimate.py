@@ -1,4 +1,5 @@
-"""Algorithm 1 on a cheap deterministic forward model: reproducibility, best-ever candidate, NaN, kill -9."""
+"""Algorithm 1 on a cheap deterministic forward model: reproducibility, best-ever candidate, NaN, kill -9,
+coarse-to-fine finishing stage, bound warnings."""
 import json
 import os
 import signal
@@ -13,14 +14,17 @@ import pytest
 
 from mpm import batch
 from mpm.store import Store
+from similarity import cma_stage
 from similarity import estimate as E
+from similarity.presets import setup_of
 from similarity.space import Material, Setup, denormalize, e_rel
 
 SIM = "fake_forward:simulate"
 TRUTH = Material(3.0, 0.6, 12.0)
 SIZE = (192, 108)
 TESTS = Path(__file__).resolve().parent
-GENS = E.get_preset("quick").generations  # 40; at 12 the elitist strategy ends farther than the centre on this toy
+DEMO = E.get_preset("demo")
+GENS = DEMO.generations  # 40; at 12 the elitist strategy ends farther than the centre on this toy
 
 
 def _footage(store, setups=((30, 50), (60, 25)), truth=TRUTH):
@@ -37,7 +41,8 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     runs = []
     for name in ("a", "b"):
         store = Store(tmp_path / name)
-        runs.append((E.estimate(exps, seed=7, workers=0, store=store, simulator=SIM, generations=GENS, propose=_fixed),
+        runs.append((E.estimate(exps, preset=DEMO, seed=7, workers=0, store=store, simulator=SIM, generations=GENS,
+                                propose=_fixed),
                      store))
     (a, store_a), (b, _) = runs
     assert a.material == b.material and a.loss == b.loss
@@ -54,8 +59,7 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     # the returned candidate is the best evaluated one of the final stage, recomputed from the store
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
     best = min(
-        np.mean([store_a.get_loss(E.simulation_request(Material.from_array(denormalize(h)), e, E.get_preset("quick"),
-                                                       SIM), eid)
+        np.mean([store_a.get_loss(E.simulation_request(Material.from_array(denormalize(h)), e, DEMO, SIM), eid)
                  for e, eid in zip(exps, eids)])
         for h in [gen["best_x"] for gen in a.stages[1].history] + [r[:3] for r in screened]
     )
@@ -71,9 +75,10 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
 def test_nan_from_failed_simulations_is_resampled(tmp_path):
     store = Store(tmp_path)
     exps = _footage(store, setups=((30, 50),))
-    est = E.estimate(exps, seed=3, workers=0, store=store, simulator="fake_forward:simulate_flaky",
+    est = E.estimate(exps, preset=DEMO, seed=3, workers=0, store=store, simulator="fake_forward:simulate_flaky",
                      generations=10, propose=_fixed)
-    assert store.count("failed") > 0
+    doomed = [r for r in store.requests() if int(r.key[:8], 16) % 4 == 0]  # the ones simulate_flaky fails
+    assert len(doomed) > 0 and store.count("failed") == len(doomed)
     assert np.isfinite(est.loss) and est.material.in_space()
     stage = est.stages[0]
     assert stage.generations == 10 and stage.evaluations > 10 * 7  # failed candidates were redrawn
@@ -84,8 +89,10 @@ def test_propose_chains_setups_with_acquire(tmp_path):
     store = Store(tmp_path)
     est, filmed = E.emulate_virheometry(TRUTH, Setup(30, 50), n_setups=2, seed=1, store=store, workers=0,
                                         generations=4, simulator=SIM, propose=_fixed)
-    assert [str(s) for s in (f.setup for f in filmed)] == ["30x50", "60x25"]
-    assert est.setups == ["30x50", "60x25"] and len(est.stages) == 2
+    assert [str(setup_of(f)) for f in filmed] == ["30x50", "60x25"]
+    assert [f.path for f in filmed] == [None, None] and [f.name for f in filmed] == ["emulated_30x50", "emulated_60x25"]
+    assert est.setups == ["30x50", "60x25"] and [s.setups for s in est.stages] == [["30x50"], ["30x50", "60x25"]]
+    assert est.preset == "demo" and (est.cell_mm, est.ppc) == (DEMO.cell_mm, DEMO.ppc)
 
 
 class _Interrupt(Exception):
@@ -93,7 +100,7 @@ class _Interrupt(Exception):
 
 
 def _stage(exps, store, generations, progress=None):
-    return E.run_stage(exps, x0=E.normalize(E.center().as_array()), sigma0=0.2, preset=E.get_preset("quick"), seed=5,
+    return E.run_stage(exps, x0=E.normalize(E.center().as_array()), sigma0=0.2, model=DEMO.search, seed=5,
                        generations=generations, store=store, executor=batch.InlineExecutor(), simulator=SIM,
                        progress=progress)
 
@@ -102,7 +109,7 @@ def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch
     exps = _footage(Store(tmp_path / "truth"), setups=((30, 50),))
     plain = _stage(exps, Store(tmp_path / "plain"), 30)  # STALL_DRAWS = 20 generations: no restart on this toy
     assert {h["restarts"] for h in plain.history} == {0}
-    monkeypatch.setattr(E, "STALL_DRAWS", 3 * 7)
+    monkeypatch.setattr(cma_stage, "STALL_DRAWS", 3 * 7)
     ref = _stage(exps, Store(tmp_path / "ref"), 30)
     draws = np.diff([0] + [h["drawn"] for h in ref.history])
     restarts = [h["restarts"] for h in ref.history]
@@ -138,8 +145,8 @@ _RUNNER = textwrap.dedent("""
     from mpm import batch
     exps = E.emulate(Material(3.0, 0.6, 12.0), [Setup(30, 50), Setup(60, 25)], store=store,
                      executor=batch.InlineExecutor(), simulator="fake_forward:simulate", image_size=(192, 108))
-    est = E.estimate(exps, seed=11, workers=0, store=store, simulator="fake_forward:simulate", generations=10,
-                     propose=lambda m, d: Setup(60, 25))
+    est = E.estimate(exps, preset="demo", seed=11, workers=0, store=store, simulator="fake_forward:simulate",
+                     generations=10, propose=lambda m, d: Setup(60, 25))
     print(json.dumps(est.material.to_dict()), flush=True)
 """)
 
@@ -177,17 +184,7 @@ def test_kill_9_and_resume(tmp_path):
     assert Store(store_dir).count() == ref_count  # same simulations in the end, none extra
 
 
-def _solver_ready():
-    try:
-        import mpm.solver  # noqa: F401
-        import mpm.silhouette  # noqa: F401
-    except Exception:  # noqa: BLE001  (the solver may not have landed)
-        return False
-    return True
-
-
 @pytest.mark.slow
-@pytest.mark.skipif(not _solver_ready(), reason="mpm.solver not available")
 def test_real_solver_end_to_end_small(tmp_path, monkeypatch):
     """Real MPM at 7 mm cells: deterministic forward model, a short estimation improves on the start,
     and a rerun is served entirely from the store with the same estimate."""
@@ -202,8 +199,56 @@ def test_real_solver_end_to_end_small(tmp_path, monkeypatch):
     assert np.array_equal(again.silhouettes, exp.frames)
     est = E.estimate([exp], preset=tiny, seed=0, workers=0, store=store, propose=None)
     assert store.count() == 1 + est.simulations
-    start = E._Objective([exp], tiny, batch.DEFAULT_SIMULATOR, store, batch.InlineExecutor(), None)
+    start = cma_stage.Objective([exp], tiny.search, batch.DEFAULT_SIMULATOR, store, batch.InlineExecutor(), None)
     assert est.loss <= start([E.normalize(E.center().as_array())])[0]
     n = store.count()
     rerun = E.estimate([exp], preset=tiny, seed=0, workers=0, store=store, propose=None)
     assert store.count() == n and rerun.material == est.material
+
+
+def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
+    """Coarse-to-fine: stages 1..N on the search model, then a warm-started stage at the solver's default."""
+    from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
+
+    footage = E.get_preset("footage")
+    assert footage.search.cell_mm > DEFAULT_CELL_MM and footage.finish_generations > 0
+    exps = _footage(Store(tmp_path / "truth"))
+    store = Store(tmp_path / "run")
+    est = E.estimate(exps, preset=footage, seed=2, workers=0, store=store, simulator=SIM, generations=3, propose=_fixed)
+    coarse, fine = est.stages[:-1], est.stages[-1]
+    assert [s.finish for s in est.stages] == [False, False, True]
+    assert [(s.cell_mm, s.ppc) for s in coarse] == [(footage.cell_mm, footage.ppc)] * 2
+    assert fine.setups == ["30x50", "60x25"] and fine.generations == footage.finish_generations
+    assert fine.sigma0 == pytest.approx(coarse[-1].sigma0 * 2 / 3)
+    # the stored requests: every simulation of the finishing stage (its warm start included) ran at the
+    # validated discretisation, and only those did
+    stored = store.requests()
+    validated = [r for r in stored if (r.cell_mm, r.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)]
+    assert len(validated) == fine.simulations == 7 * 2 + footage.finish_generations * 7 * 2
+    assert all((r.cell_mm, r.ppc) == (footage.cell_mm, footage.ppc) for r in stored if r not in validated)
+    # the answer and its loss are the finishing stage's, recomputed from the store at that discretisation
+    assert est.material == fine.material and (est.cell_mm, est.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)
+    eids = [batch.experiment_id(e.frames, e.name) for e in exps]
+    model = footage.final.resolved()
+    assert est.loss == pytest.approx(np.mean([store.get_loss(E.simulation_request(est.material, e, model, SIM), eid)
+                                              for e, eid in zip(exps, eids)]))
+    # it starts from the coarse estimate's re-scored neighbourhood and can only improve on it there
+    assert fine.screened[0][:3] == pytest.approx(list(E.normalize(coarse[-1].material.as_array())))
+    assert est.loss <= min(r[3] for r in fine.screened)
+    d = est.to_dict()
+    assert d["discretisation"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL}
+    assert d["warnings"] == E.bound_warnings(est.material)
+
+
+@pytest.mark.parametrize("material, expected", [
+    (Material(5.0, 0.6, 10.0), []),
+    (Material(1e-4, 0.6, 0.0), []),  # eta and sigma_y cannot lie below their lower bounds
+    (Material(29.5, 0.6, 10.0), ["eta upper"]),
+    (Material(5.0, 0.31, 39.9), ["n lower", "sigma_y upper"]),
+    (Material(5.0, 0.995, 10.0), ["n upper"]),
+    (Material(5.0, 0.3 + 0.7 * 0.021, 10.0), []),  # just outside the margin
+])
+def test_bound_warnings_name_the_parameter_and_bound(material, expected):
+    lines = E.bound_warnings(material)
+    assert [" ".join(w.split()[:1] + [w.split("space's ")[1].split()[0]]) for w in lines] == expected
+    assert all("may lie outside" in w for w in lines)

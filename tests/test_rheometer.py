@@ -4,7 +4,7 @@ import pytest
 
 from similarity.space import Material
 from studies.cli import main
-from studies.rheometer import fit_herschel_bulkley, log_stress_rms, read_flow_curve
+from surrogate.rheometer import fit_herschel_bulkley, log_stress_rms, read_flow_curve
 
 HEADER = ["テスト:\t{name}", "結果:\t粘度測定", "インターバル:\t1",
           "ポイント No.\t時間\tせん断速度\tせん断応力\t粘度\tトルク\t温度", "\t\t\t\t\t\t",

@@ -1,4 +1,4 @@
-"""``virheo demo``: an emulated two-setup ViRheometry run on a default material (quick preset)."""
+"""``virheo demo``: an emulated two-setup ViRheometry run on a default material (demo preset)."""
 from __future__ import annotations
 
 import argparse
@@ -8,12 +8,12 @@ from pathlib import Path
 # The embedded default specimen (SI) and its first setup (mm); see docs/performance.md (estimate).
 DEFAULT_TRUTH = "3.0,0.5,15.0"
 DEFAULT_FIRST_SETUP = "40x50"
-DEFAULT_SEED = 0  # quick preset (elitist), seeds 0..3: E_rel 0.027, 0.041, 0.142, 0.115 (docs/estimation.md)
+DEFAULT_SEED = 0  # demo preset (elitist), seeds 0..3: E_rel 0.027, 0.041, 0.142, 0.115 (docs/estimation.md)
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "demo", help="emulated two-setup ViRheometry run on a default material (quick preset)",
+        "demo", help="emulated two-setup ViRheometry run on a default material (demo preset)",
         description="Simulates footage of a known material (the ground truth), estimates it back with Algorithm 1 "
         "(setup 1, then the proposed setup 2) and writes a small report. Re-running resumes from the store.",
     )
@@ -21,7 +21,7 @@ def register(subparsers) -> None:
     p.add_argument("--material", default=DEFAULT_TRUTH, metavar="ETA,N,SIGMA_Y", help=f"ground truth in SI (default {DEFAULT_TRUTH})")
     p.add_argument("--setup", default=DEFAULT_FIRST_SETUP, metavar="WxH", help=f"first setup in mm (default {DEFAULT_FIRST_SETUP})")
     p.add_argument("--density", type=float, default=1000.0, help="density in kg/m^3 (default 1000)")
-    p.add_argument("--generations", type=int, default=None, metavar="N", help="CMA-ES generations per stage (default: quick preset)")
+    p.add_argument("--generations", type=int, default=None, metavar="N", help="CMA-ES generations per stage (default: demo preset)")
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
     p.add_argument("--seed", type=int, default=DEFAULT_SEED, help=f"CMA-ES seed (default {DEFAULT_SEED})")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -53,10 +53,10 @@ def run(args: argparse.Namespace) -> int:
             if progress:
                 progress({"event": "message", "text": f"ground truth: eta={truth.eta:g} Pa s^n, n={truth.n:g}, "
                           f"sigma_y={truth.sigma_y:g} Pa; first setup {first} mm"})
-            est, filmed = E.emulate_virheometry(truth, first, n_setups=2, preset="quick", seed=args.seed,
+            est, filmed = E.emulate_virheometry(truth, first, n_setups=2, preset="demo", seed=args.seed,
                                                 density=args.density, store=store, executor=executor,
                                                 generations=args.generations, simulator=simulator, progress=progress)
-            frames = E.simulated_frames(est.material, filmed, preset="quick", store=store, executor=executor,
+            frames = E.simulated_frames(est.material, filmed, preset="demo", store=store, executor=executor,
                                         simulator=simulator)
     finally:
         batch.shutdown(executor)

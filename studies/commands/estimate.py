@@ -6,6 +6,8 @@ import sys
 from contextlib import contextmanager
 from pathlib import Path
 
+from similarity.presets import PRESETS
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -14,7 +16,8 @@ def register(subparsers) -> None:
         "Stage k fits the first k folders. Re-running the same command after an interruption resumes it.",
     )
     p.add_argument("dirs", nargs="+", metavar="DIR", help="experiment folders (settings.xml, camera_params.xml, config_01..08.png)")
-    p.add_argument("--preset", default="quick", choices=("quick", "paper"), help="accuracy/time trade-off (default quick)")
+    p.add_argument("--preset", default="footage", choices=tuple(PRESETS),
+                   help="accuracy/time trade-off (default footage: coarse search, finished at the validated discretisation)")
     p.add_argument("--generations", type=int, default=None, metavar="N", help="CMA-ES generations per stage (default: the preset's)")
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core; 0: in-process)")
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="dask.distributed scheduler address, e.g. tcp://host:8786")

@@ -26,7 +26,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from similarity.space import Material
-    from studies.rheometer import fit_herschel_bulkley, log_stress_rms, read_flow_curve
+    from surrogate.rheometer import fit_herschel_bulkley, log_stress_rms, read_flow_curve
 
     if not (0 < args.lo < args.hi):
         raise ValueError(f"--lo {args.lo:g} and --hi {args.hi:g} must satisfy 0 < lo < hi (1/s)")

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 
+from similarity.presets import PRESETS
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("study", help="long studies (emulation: section 7.1)",
@@ -13,7 +15,7 @@ def register(subparsers) -> None:
                        "two-setup ViRheometry vs one setup at equal simulation count.")
     e.add_argument("--materials", type=int, default=6, help="number of materials (default 6)")
     e.add_argument("--runs", type=int, default=3, help="runs per material from random first setups (default 3)")
-    e.add_argument("--preset", default="quick", choices=("quick", "paper"))
+    e.add_argument("--preset", default="demo", choices=tuple(PRESETS), help="estimation preset (default demo)")
     e.add_argument("--generations", type=int, default=None, metavar="N", help="generations per stage (default: preset)")
     e.add_argument("--workers", type=int, default=None, metavar="K")
     e.add_argument("--scheduler", default=None, metavar="ADDR", help="dask.distributed scheduler address")

@@ -160,7 +160,7 @@ def log_stress_residuals(material: Material, curve: FlowCurve, lo: float = RELIA
     return np.log10(material.stress(curve.shear_rate[mask])) - np.log10(curve.shear_stress[mask])
 
 
-def log_stress_rms(material: Material, curve: FlowCurve, lo: float = 1.0, hi: float = 100.0) -> float:
+def log_stress_rms(material: Material, curve: FlowCurve, lo: float = RELIABLE_RANGE[0], hi: float = RELIABLE_RANGE[1]) -> float:
     """RMS of log10(model stress) - log10(measured stress) over lo <= shear rate <= hi (1/s)."""
     r = log_stress_residuals(material, curve, lo, hi)
     if r.size == 0:

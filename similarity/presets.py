@@ -1,0 +1,109 @@
+"""Estimation presets (CMA-ES budget and forward-model discretisation) and the simulation request they imply.
+
+A preset names what it is for: ``demo`` (emulated footage, minutes on a laptop), ``footage`` (real
+footage: Algorithm 1 on a cheap model, finished at the solver's validated discretisation) and ``paper``
+(the paper's budget and discretisation).  Costs and accuracy: docs/performance.md.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from mpm import batch
+from similarity.space import Setup
+
+PAPER_SIGMA0 = 0.1  # stage-1 step size in [0, 1]^3: the paper's Sigma = 1 in a [0, 10]^3 box
+
+
+@dataclass(frozen=True)
+class Discretisation:
+    """MPM cell width in mm and particles per cell per axis; None: the solver's default (the validated one)."""
+
+    cell_mm: float | None = None
+    ppc: int | None = None
+
+    def resolved(self) -> "Discretisation":
+        """The same with the solver's defaults filled in."""
+        if self.cell_mm is not None and self.ppc is not None:
+            return Discretisation(float(self.cell_mm), int(self.ppc))
+        from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
+
+        return Discretisation(float(DEFAULT_CELL_MM if self.cell_mm is None else self.cell_mm),
+                              int(PARTICLES_PER_CELL if self.ppc is None else self.ppc))
+
+    def to_dict(self) -> dict:
+        return {"cell_mm": self.cell_mm, "ppc": self.ppc}
+
+
+VALIDATED = Discretisation()  # the solver's default: converged against a 2x finer run on the shared footage
+
+
+@dataclass(frozen=True)
+class Preset:
+    """CMA-ES budget and forward model of :func:`similarity.estimate.estimate`.
+
+    Stage k of Algorithm 1 runs ``generations`` generations on the model (``cell_mm``, ``ppc``) with step
+    ``sigma0 * (2/3)^(k-1)``.  With ``finish_generations`` > 0 a last stage fits all setups again on the
+    ``finish`` discretisation, warm-started from the last stage, so the answer is at that fidelity.
+    """
+
+    name: str
+    generations: int  # per stage (paper: 100)
+    cell_mm: float | None  # search model; None: the solver's default
+    ppc: int | None = None
+    sigma0: float = PAPER_SIGMA0
+    finish_generations: int = 0
+    finish: Discretisation = VALIDATED
+    purpose: str = ""
+
+    @property
+    def search(self) -> Discretisation:
+        return Discretisation(self.cell_mm, self.ppc)
+
+    @property
+    def final(self) -> Discretisation:
+        """The discretisation of the last stage, i.e. of the estimate's loss."""
+        return self.finish if self.finish_generations > 0 else self.search
+
+
+PRESETS = {p.name: p for p in (
+    Preset("demo", generations=40, cell_mm=5.0, ppc=1, sigma0=0.2,
+           purpose="emulated footage (virheo demo, emulation studies): 5 mm cells, a few minutes on 2 cores"),
+    Preset("footage", generations=12, cell_mm=3.0, ppc=1, sigma0=0.2, finish_generations=6,
+           purpose="real footage: 3 mm cells, then 6 generations at the solver's validated discretisation"),
+    Preset("paper", generations=100, cell_mm=1.26, ppc=2,
+           purpose="publication: the paper's budget and discretisation (1.26 mm, 2 particles per cell per axis)"),
+)}
+
+
+def get_preset(preset) -> Preset:
+    if isinstance(preset, Preset):
+        return preset
+    try:
+        return PRESETS[str(preset)]
+    except KeyError:
+        raise ValueError(f"unknown preset '{preset}': choose one of {', '.join(PRESETS)}") from None
+
+
+def setup_of(experiment) -> Setup:
+    return Setup(float(experiment.width_mm), float(experiment.height_mm))
+
+
+def image_size_of(experiment) -> tuple[int, int]:
+    frames = np.asarray(experiment.frames)
+    return int(frames.shape[-1]), int(frames.shape[-2])
+
+
+def simulation_request(material, experiment, model, simulator: str = batch.DEFAULT_SIMULATOR, image_size=None):
+    """The store/batch request that simulates ``material`` in ``experiment``'s setup and camera.
+
+    ``model``: a :class:`Discretisation`, or a :class:`Preset` (its search model); the solver's defaults
+    are filled in, so every request names its discretisation.
+    """
+    model = (model.search if isinstance(model, Preset) else model).resolved()
+    return batch.request_for(
+        material, setup_of(experiment), density=float(experiment.density), depth_mm=float(experiment.depth_mm),
+        camera=experiment.camera, cell_mm=model.cell_mm, ppc=model.ppc,
+        image_size=image_size or image_size_of(experiment), simulator=simulator,
+    )
