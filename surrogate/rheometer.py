@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from scipy.optimize import least_squares
 
-from similarity.space import Material
+from mpm.params import Material
 
 # unit label in the export -> (field name, factor to SI)
 _UNITS = {
