@@ -24,9 +24,9 @@ def _design_available():
 
 def test_demo_shortened_with_fake_forward_model(tmp_path):
     out = tmp_path / "demo"
-    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}")
+    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
     proc = subprocess.run([sys.executable, "-m", "studies.cli", "demo", "--out", str(out), "--generations", "3",
-                           "--workers", "0", "--quiet", "--simulator", "fake_forward:simulate"],
+                           "--workers", "0", "--quiet"],
                           env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     result = json.loads((out / "result.json").read_text())
