@@ -199,6 +199,14 @@ def frame_paths(folder) -> list[Path]:
     return [found[k] for k in range(1, N_FRAMES + 1)]
 
 
+def _required_file(path: Path, name: str) -> Path:
+    if path.is_dir():
+        raise ValueError(f"{name}: {path.name} is a folder, not a file")
+    if not path.is_file():
+        raise FileNotFoundError(f"{name}: {path.name} not found")
+    return path
+
+
 def load(path, *, frames: bool = True) -> Experiment:
     """Read and validate an experiment folder; problems raise one-line ValueError/FileNotFoundError.
 
@@ -209,12 +217,10 @@ def load(path, *, frames: bool = True) -> Experiment:
     if not folder.exists():
         raise FileNotFoundError(f"experiment folder not found: {folder}")
     if not folder.is_dir():
-        raise ValueError(f"not a folder: {folder}")
+        raise ValueError(f"{folder} is a file, not an experiment folder")
     name = folder.resolve().name
     notes: list[str] = []
-    settings = folder / "settings.xml"
-    if not settings.is_file():
-        raise FileNotFoundError(f"{name}: settings.xml not found")
+    settings = _required_file(folder / "settings.xml", name)
     el = _elements(settings, notes)
     width_cm, height_cm, depth_cm, rho = _setup_from_xml(el, f"{name}/settings.xml", name, notes)
     for label, v in (("width", width_cm), ("height", height_cm), ("depth", depth_cm)):
@@ -223,9 +229,7 @@ def load(path, *, frames: bool = True) -> Experiment:
     check_density(1000.0 * rho, f"{name}: the density in settings.xml,")
     initial = _initial_material(el, f"{name}/settings.xml")
 
-    cam_path = folder / "camera_params.xml"
-    if not cam_path.is_file():
-        raise FileNotFoundError(f"{name}: camera_params.xml not found")
+    cam_path = _required_file(folder / "camera_params.xml", name)
     camera, cam_notes = _camera.read_xml(cam_path)
     notes.extend(cam_notes)
 

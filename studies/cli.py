@@ -128,7 +128,7 @@ def main(argv=None) -> int:
         return _fail(prefix, describe_os_error(exc))
     except sqlite3.Error as exc:
         return _fail(prefix, f"the simulation store's index cannot be used ({_first_line(exc)}); "
-                     f"run again to rebuild it, or pass another --store")
+                     f"if another run uses the same store, wait for it; else pass another --store")
     except (pickle.UnpicklingError, zipfile.BadZipFile, EOFError) as exc:
         return _fail(prefix, f"a stored file is damaged ({_first_line(exc)}); run again, or pass another --store")
     return int(status or 0)

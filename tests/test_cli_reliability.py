@@ -174,3 +174,27 @@ def test_version_and_every_option_has_help():
                 assert action.help and action.help != argparse.SUPPRESS, (p.prog, action.option_strings)
     assert seen > 40
 
+
+
+def test_disk_full_and_damaged_files_are_one_line(capsys, monkeypatch, tmp_path):
+    import errno
+    import sqlite3
+
+    from studies.commands import design
+
+    def full(args):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "out" / "result.json"))
+
+    monkeypatch.setattr(design, "run", full)
+    argv = ["design", "--material", "3,0.5,3", "--done", "29x59"]
+    assert one_error_line(capsys, argv) == (
+        f"virheo design: error: {tmp_path / 'out' / 'result.json'}: No space left on device; free some disk "
+        f"space and run the same command again (finished simulations are kept)")
+
+    def locked(args):
+        raise sqlite3.OperationalError("database is locked")
+
+    monkeypatch.setattr(design, "run", locked)
+    assert one_error_line(capsys, argv) == (
+        "virheo design: error: the simulation store's index cannot be used (database is locked); "
+        "if another run uses the same store, wait for it; else pass another --store")
