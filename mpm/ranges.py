@@ -1,8 +1,8 @@
 """What the forward model accepts: densities, and materials beyond the paper's material space.
 
 The paper's material space (section 3.1) is where estimation searches.  A single simulation may go
-beyond it, within limits past which the solver takes many times a normal run or the 1/3 s of flow
-shows nothing (a material 100 times stiffer than the space's stiffest does not move in 1/3 s).
+beyond it, up to 100 times its bounds; extreme values (eta = 1e30 Pa s^n) make the solver crawl and are
+refused.
 """
 from __future__ import annotations
 

@@ -44,7 +44,8 @@ def test_simulate_against_footage_writes_consistent_outputs(shared_data, tmp_pat
                            "--experiment", str(exp), "--cell-mm", "5", "--out", str(out)],
                           capture_output=True, text=True, timeout=600, cwd=REPO)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "Taichi" not in proc.stdout + proc.stderr  # no start-up noise on a CPU user's terminal
+    noise = proc.stdout + proc.stderr
+    assert "Taichi" not in noise and "libcuda" not in noise  # no start-up noise on a CPU user's terminal
     assert proc.stdout.startswith("loss (eq. 3")
     summary = json.loads((out / "summary.json").read_text())
     assert summary["setup"] == {"width_mm": 30.0, "height_mm": 20.0}

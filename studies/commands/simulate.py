@@ -17,7 +17,7 @@ Units: --material ETA,N,SIGMA_Y in SI (Pa s^n, -, Pa); --setup WIDTHxHEIGHT in m
 --density in kg/m^3; --cell-mm grid cell width in mm.
 Accepted materials: the paper's material space (eta 1e-4..30 Pa s^n, n 0.3..1, sigma_y 0..40 Pa),
 and beyond it with a warning up to eta 3000 Pa s^n, n 0.1..2 (n > 1: shear-thickening), sigma_y 4000 Pa;
-stiffer materials are refused (the solver would take many times a normal run)."""
+values beyond these limits are refused (extreme ones, e.g. eta = 1e30, make the solver crawl)."""
 
 
 def register(sub) -> None:
