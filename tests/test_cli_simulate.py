@@ -23,6 +23,7 @@ WORC2 = "real_world/ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
     (["--material", "1,0.5,2", "--setup", "abc"], "WIDTHxHEIGHT"),
     (["--material", "1,0.5,2", "--setup", "30x20", "--density", "-5"], "density"),
     (["--material", "1,0.5,2", "--setup", "30x20", "--camera", "/nonexistent/camera.xml"], "camera"),
+    (["--material", "1,0.5,2", "--setup", "30x20", "--camera", "/"], "--camera / is a folder: name a camera_params.xml file"),
 ])
 def test_bad_input_is_one_line_exit_2(argv, needle, tmp_path, capsys):
     assert main(["simulate", *argv, "--out", str(tmp_path / "o")]) == 2

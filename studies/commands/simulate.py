@@ -68,6 +68,8 @@ def run(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} is a file, not a folder: name a folder")
+    if args.camera and Path(args.camera).is_dir():
+        raise ValueError(f"--camera {args.camera} is a folder: name a camera_params.xml file")
     exp = xp.load(args.experiment) if args.experiment else None
     if args.setup:
         setup = Setup.parse(args.setup).check_in_space()
