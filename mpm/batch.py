@@ -19,6 +19,7 @@ import importlib
 import json
 import multiprocessing
 import os
+import sys
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -26,12 +27,14 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from mpm.loss import video_loss
 from mpm.store import SimRequest, SimResult, Store, digest
 
 DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
 
 # Source files of this package that do not change what a simulation computes.
-_NOT_SIMULATION = {"store.py", "batch.py", "datasets.py", "experiment.py", "loss.py", "shear.py", "__init__.py"}
+_NOT_SIMULATION = {"store.py", "batch.py", "datasets.py", "experiment.py", "loss.py", "shear.py", "ranges.py",
+                   "__init__.py"}
 
 
 # -- requests --------------------------------------------------------------------------------------
@@ -139,10 +142,14 @@ class InlineExecutor(Executor):
 def _init_worker(threads: int) -> None:
     os.environ.setdefault("VIRHEO_THREADS", str(threads))
     os.environ.setdefault("OMP_NUM_THREADS", str(threads))
+    # results travel back through the executor: what a worker prints (Taichi's start-up lines) is noise
+    sys.stdout = open(os.devnull, "w")
 
 
 def local_executor(workers: int | None = None) -> Executor:
     """Local worker processes ('spawn'); ``workers=0`` -> in-process. Default: one per CPU core."""
+    if workers is not None and workers < 0:
+        raise ValueError(f"workers={workers} must be >= 0 (0: in this process)")
     if workers == 0:
         return InlineExecutor()
     cores = os.cpu_count() or 1
@@ -250,7 +257,7 @@ def evaluate_losses(jobs: Iterable[tuple[SimRequest, str, np.ndarray]], *, store
         def _done(req, res, cached):
             for i in by_key.get(req.key, []):
                 _, exp_id, ref = jobs[i]
-                loss = video_loss(res.silhouettes, ref) if res.ok and res.silhouettes is not None else float("nan")
+                loss = float(video_loss(res.silhouettes, ref)) if res.ok and res.silhouettes is not None else float("nan")
                 out[i] = loss
                 if store is not None:
                     store.put_loss(req, exp_id, loss)

@@ -24,6 +24,7 @@ from mpm import camera as _camera
 from mpm.camera import Camera
 from mpm.loss import load_reference
 from mpm.params import FPS, N_FRAMES, WORKING_SIZE
+from mpm.ranges import check_density
 FRAME_TIMES_S = tuple(k / FPS for k in range(1, N_FRAMES + 1))  # frame k <-> config_k at t = k/24 s
 WALL_OVERLAP_CM = 0.15  # the reference cuboid reaches 0.15 cm into the back, floor and far walls
 _FRAME_NAME = re.compile(r"^config_(\d+)\.png$", re.I)
@@ -198,6 +199,14 @@ def frame_paths(folder) -> list[Path]:
     return [found[k] for k in range(1, N_FRAMES + 1)]
 
 
+def _required_file(path: Path, name: str) -> Path:
+    if path.is_dir():
+        raise ValueError(f"{name}: {path.name} is a folder, not a file")
+    if not path.is_file():
+        raise FileNotFoundError(f"{name}: {path.name} not found")
+    return path
+
+
 def load(path, *, frames: bool = True) -> Experiment:
     """Read and validate an experiment folder; problems raise one-line ValueError/FileNotFoundError.
 
@@ -208,24 +217,19 @@ def load(path, *, frames: bool = True) -> Experiment:
     if not folder.exists():
         raise FileNotFoundError(f"experiment folder not found: {folder}")
     if not folder.is_dir():
-        raise ValueError(f"not a folder: {folder}")
+        raise ValueError(f"{folder} is a file, not an experiment folder")
     name = folder.resolve().name
     notes: list[str] = []
-    settings = folder / "settings.xml"
-    if not settings.is_file():
-        raise FileNotFoundError(f"{name}: settings.xml not found")
+    settings = _required_file(folder / "settings.xml", name)
     el = _elements(settings, notes)
     width_cm, height_cm, depth_cm, rho = _setup_from_xml(el, f"{name}/settings.xml", name, notes)
     for label, v in (("width", width_cm), ("height", height_cm), ("depth", depth_cm)):
         if not 0.5 <= v <= 30.0:
             raise ValueError(f"{name}: implausible {label} {v:g} cm in settings.xml")
-    if not 0.3 <= rho <= 5.0:
-        raise ValueError(f"{name}: implausible density RHO={rho:g} g/cm^3 in settings.xml")
+    check_density(1000.0 * rho, f"{name}: the density in settings.xml,")
     initial = _initial_material(el, f"{name}/settings.xml")
 
-    cam_path = folder / "camera_params.xml"
-    if not cam_path.is_file():
-        raise FileNotFoundError(f"{name}: camera_params.xml not found")
+    cam_path = _required_file(folder / "camera_params.xml", name)
     camera, cam_notes = _camera.read_xml(cam_path)
     notes.extend(cam_notes)
 
@@ -233,13 +237,10 @@ def load(path, *, frames: bool = True) -> Experiment:
     masks = np.zeros((0, WORKING_SIZE[1], WORKING_SIZE[0]), dtype=bool)
     if frames:
         masks = np.stack([load_reference(p) for p in frame_paths(folder)])
-        for k, mask in enumerate(masks, start=1):
-            fraction = float(mask.mean())
-            if fraction == 0.0:
-                notes.append(f"config_{k:02d}.png shows no material")
-            elif fraction > 0.5:
-                notes.append(f"config_{k:02d}.png is {100 * fraction:.0f}% material: inverted colours? "
-                             f"(material must be black on white)")
+        inverted = [k for k, mask in enumerate(masks, start=1) if mask.mean() > 0.5]
+        if inverted:
+            notes.append(f"frames {frame_list(inverted)} are more than half material: inverted colours? "
+                         f"(material must be black on white)")
     win_w, win_h = camera.window_size
     if abs(win_w * WORKING_SIZE[1] - win_h * WORKING_SIZE[0]) > 0.01 * win_w * WORKING_SIZE[1]:
         notes.append(f"camera window_size {win_w}x{win_h} does not have the frames' aspect ratio "
@@ -247,6 +248,51 @@ def load(path, *, frames: bool = True) -> Experiment:
     return Experiment(name=name, path=folder, width_mm=round(10.0 * width_cm, 6), height_mm=round(10.0 * height_cm, 6),
                       depth_mm=round(10.0 * depth_cm, 6), density=1000.0 * rho, camera=camera, frames=masks,
                       initial_material=initial, setup_index=int(m.group(3)) if m else None, warnings=notes)
+
+
+def frame_list(frames) -> str:
+    """1-based frame numbers as text with runs collapsed: [1, 2, 3, 6] -> '1-3, 6'."""
+    frames = sorted(int(k) for k in frames)
+    runs: list[list[int]] = []
+    for k in frames:
+        if runs and k == runs[-1][1] + 1:
+            runs[-1][1] = k
+        else:
+            runs.append([k, k])
+    return ", ".join(f"{a}" if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def footage_problems(frames) -> list[str]:
+    """Why the footage holds no evidence about the material, one line per reason (empty: usable).
+
+    Footage is no evidence when frames show no material, when the material never moves (all frames
+    identical), or when it leaves the image (touches its left or right edge where frame 1 does not).
+    """
+    masks = np.asarray(frames, dtype=bool)
+    if len(masks) == 0:
+        return []
+    problems = []
+    empty = [k for k, m in enumerate(masks, start=1) if not m.any()]
+    if empty:
+        plural = len(empty) > 1
+        problems.append(f"frame{'s' * plural} {frame_list(empty)} of {len(masks)} show{'' if plural else 's'} no material")
+    elif len(masks) > 1 and all(np.array_equal(masks[0], m) for m in masks[1:]):
+        problems.append(f"the material never moves: frames 1-{len(masks)} are identical")
+    else:
+        edges0 = (masks[0][:, 0].any(), masks[0][:, -1].any())
+        out = [k for k, m in enumerate(masks, start=1)
+               if (m[:, 0].any() and not edges0[0]) or (m[:, -1].any() and not edges0[1])]
+        if out:
+            problems.append(f"the material leaves the image in frame{'s' * (len(out) > 1)} {frame_list(out)} "
+                            f"(it reaches the image's edge)")
+    return problems
+
+
+def check_footage(exp: "Experiment") -> None:
+    """Raise ValueError when the footage of ``exp`` holds no evidence (see :func:`footage_problems`)."""
+    problems = footage_problems(exp.frames)
+    if problems:
+        raise ValueError(f"{exp.name}: {problems[0]}: nothing to estimate from (check the silhouettes)")
 
 
 def iter_shared() -> list[Path]:

@@ -5,6 +5,8 @@ threads (default: all cores; use 1 per process when running several processes). 
 float per process, so switching precision re-initialises it (and recompiles): keep one per process.
 Importing this module does not initialise Taichi.
 """
+import contextlib
+import io
 import os
 
 import taichi as ti
@@ -57,7 +59,8 @@ def ensure_taichi(precision: str | None = None):
         return rt.prog
     if rt.prog is not None:
         ti.reset()
-    ti.init(arch=arch(), default_fp=fp, offline_cache=True, cpu_max_num_threads=threads(), log_level=ti.WARN)
+    with contextlib.redirect_stdout(io.StringIO()):  # Taichi prints its start-up lines to stdout
+        ti.init(arch=arch(), default_fp=fp, offline_cache=True, cpu_max_num_threads=threads(), log_level=ti.WARN)
     return impl.get_runtime().prog
 
 

@@ -4,22 +4,21 @@ Every simulation *request* (material, setup, density, depth, camera, cell width,
 rule, precision, image size, simulator and its code version) has a stable key, the SHA-256 of its
 canonical JSON.  A finished simulation is stored as
 
-* ``sims/<key[:2]>/<key>.npz``: silhouettes packed with ``np.packbits`` (8 x 540 x 960 bool ->
-  ~0.5 MB before, a few tens of kB after compression), front position per frame, frame times
-  and the solver's stats;
+* ``sims/<key[:2]>/<key>.npz``: silhouettes packed with ``np.packbits``, front position per frame,
+  frame times, the solver's stats and the request itself;
 * one row in ``index.sqlite`` (table ``sims``) with the request, status (``ok`` / ``failed``),
   error text and wall time.  Failed simulations are remembered too: the simulator is
   deterministic for a given request, so a failure is a result (the optimiser sees NaN).
 
-Video losses against an experiment are cached per (request key, experiment id) in ``losses``.
+Video losses against an experiment are cached per (request key, experiment id) in ``losses``;
+CMA-ES checkpoints (any picklable object) live in ``checkpoints/<run_id>.pkl`` with the previous
+one kept as ``<run_id>.prev.pkl``.
 
-Crash safety (kill -9 at any moment): arrays are written to a temporary file in the same folder
-and renamed with ``os.replace`` *before* the index row is committed, and each row is one SQLite
-transaction (WAL journal).  A row therefore always points at a complete file; a kill between the
-rename and the commit leaves an orphan file that the next ``put`` of the same request overwrites.
-
-CMA-ES checkpoints (any picklable object, e.g. the pycma ``CMAEvolutionStrategy``) live in
-``checkpoints/<run_id>.pkl``, replaced atomically the same way.
+Crash safety: every file is written by :func:`atomic_write` (temp file, fsync, rename) *before*
+its index row is committed (one SQLite transaction, WAL journal), so a kill at any moment leaves
+complete files only.  Damage from outside (a full disk, an interrupted copy) is healed on open:
+a damaged index is moved aside and rebuilt from the array files, an unreadable array is
+simulated again, an unreadable checkpoint falls back to the previous one or to the start.
 """
 from __future__ import annotations
 
@@ -30,6 +29,9 @@ import pickle
 import sqlite3
 import tempfile
 import time
+import warnings
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -155,12 +157,25 @@ def unpack(packed: np.ndarray, shape) -> np.ndarray:
     return flat.reshape(shape).astype(bool)
 
 
-def _atomic_write(path: Path, write) -> None:
-    """Write through ``write(fileobj)`` to a temp file beside ``path``, then rename over it."""
+def _read_umask() -> int:
+    mask = os.umask(0o022)  # the only way to read it; set back at once (at import, before any threads)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()
+
+
+def atomic_write(path, write, *, mode: str = "b") -> Path:
+    """Write ``path`` all or nothing: ``write(fileobj)`` fills a temp file beside it, which is flushed to
+    disk (fsync) and renamed over ``path``.  A kill or a full disk leaves the old file (or none), never a
+    half-written one.  The file gets the user's normal mode (0666 less the umask).  ``mode``: "b" or "t"."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
-        with os.fdopen(fd, "wb") as fh:
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        with os.fdopen(fd, "w" + mode) as fh:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
@@ -171,19 +186,101 @@ def _atomic_write(path: Path, write) -> None:
         except FileNotFoundError:
             pass
         raise
+    return path
+
+
+class StoreWarning(UserWarning):
+    """A damaged part of the store was set aside; the run goes on without it."""
+
+
+_UNREADABLE = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zlib.error)
 
 
 class Store:
-    """Persistent cache of simulations, their losses and optimiser checkpoints under ``root``."""
+    """Persistent cache of simulations, their losses and optimiser checkpoints under ``root``.
+
+    Opening a store heals it: a damaged index is moved aside and rebuilt from the intact arrays on
+    disk; an unreadable array or checkpoint is treated as missing.  Each repair is one
+    :class:`StoreWarning`.
+    """
 
     def __init__(self, root):
         self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise NotADirectoryError(f"store {self.root} is a file, not a folder: name a folder for --store")
         self.root.mkdir(parents=True, exist_ok=True)
-        self._db = sqlite3.connect(self.root / "index.sqlite", timeout=60.0, isolation_level=None)
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")
-        self._db.executescript(_SCHEMA)
+        self._warned: set[str] = set()
+        try:
+            self._db = self._open_index()
+        except sqlite3.DatabaseError as exc:
+            self._db = self._rebuild_index(exc)
+        else:
+            if self._db.execute("SELECT COUNT(*) FROM sims").fetchone()[0] == 0 and any(self._array_files()):
+                self._db.close()
+                self._db = self._rebuild_index(None)
         self._sweep_temp_files()
+
+    @property
+    def index_path(self) -> Path:
+        return self.root / "index.sqlite"
+
+    def _open_index(self) -> sqlite3.Connection:
+        db = sqlite3.connect(self.index_path, timeout=60.0, isolation_level=None)
+        try:
+            db.execute("PRAGMA journal_mode=WAL")
+            db.execute("PRAGMA synchronous=NORMAL")
+            ok = db.execute("PRAGMA quick_check").fetchone()
+            if ok is None or ok[0] != "ok":
+                raise sqlite3.DatabaseError(f"integrity check failed: {ok[0] if ok else 'no answer'}")
+            db.executescript(_SCHEMA)
+        except BaseException:
+            db.close()
+            raise
+        return db
+
+    def _array_files(self):
+        base = self.root / "sims"
+        return base.glob("*/*.npz") if base.is_dir() else iter(())
+
+    def _warn(self, key: str, message: str) -> None:
+        if key not in self._warned:
+            self._warned.add(key)
+            warnings.warn(message, StoreWarning, stacklevel=3)
+
+    def _rebuild_index(self, error) -> sqlite3.Connection:
+        """Move a damaged index aside and index every readable array file again."""
+        aside = None
+        if error is not None:
+            aside = self.index_path.with_name(f"index.sqlite.damaged-{time.strftime('%Y%m%d-%H%M%S')}")
+            for suffix in ("", "-wal", "-shm"):
+                src = Path(str(self.index_path) + suffix)
+                if src.exists():
+                    os.replace(src, Path(str(aside) + suffix))
+        db = self._open_index()
+        rows, skipped = [], 0
+        for path in self._array_files():
+            try:
+                with np.load(path) as z:
+                    request = json.loads(str(z["request"]))
+                    wall = float(z["wall_seconds"]) if "wall_seconds" in z.files else float("nan")
+                    unpack(z["silhouettes"], z["shape"]) if z["shape"].size else None
+                key = SimRequest.from_dict(request).key
+            except (*_UNREADABLE, TypeError):
+                skipped += 1
+                continue
+            if key != path.stem:
+                skipped += 1
+                continue
+            rows.append((key, _canonical(request), "ok", None, wall, path.stat().st_mtime))
+        with db:
+            db.execute("BEGIN IMMEDIATE")
+            db.executemany("INSERT OR REPLACE INTO sims (key, request, status, error, wall_seconds, created) "
+                           "VALUES (?,?,?,?,?,?)", rows)
+        what = (f"store index {self.index_path} was damaged ({str(error).splitlines()[0]}); moved to {aside.name}"
+                if error is not None else f"store index {self.index_path} had no entries")
+        self._warn("index", f"{what}; rebuilt from {len(rows)} intact simulations on disk"
+                   + (f" ({skipped} unreadable files will be simulated again)" if skipped else ""))
+        return db
 
     # -- simulations -------------------------------------------------------------------------
     def _array_path(self, key: str) -> Path:
@@ -194,7 +291,7 @@ class Store:
         return row is not None
 
     def get(self, request: SimRequest) -> SimResult | None:
-        """The stored result of ``request``, or None when it was never simulated."""
+        """The stored result of ``request``, or None when it was never simulated (or its file is unreadable)."""
         key = request.key
         row = self._db.execute("SELECT status, error, wall_seconds FROM sims WHERE key=?", (key,)).fetchone()
         if row is None:
@@ -202,18 +299,29 @@ class Store:
         status, error, wall = row
         if status != "ok":
             return SimResult(None, error=error or "failed", wall_seconds=wall if wall is not None else float("nan"))
+        path = self._array_path(key)
         try:
-            with np.load(self._array_path(key)) as z:
+            with np.load(path) as z:
                 sil = unpack(z["silhouettes"], z["shape"]) if z["shape"].size else None
                 front = z["front_m"]
                 times = z["times"]
                 stats = json.loads(str(z["stats"]))
-        except (FileNotFoundError, OSError, ValueError, KeyError):
-            return None  # index row without a readable file (should not happen): simulate again
+        except _UNREADABLE as exc:
+            self._warn(key, f"simulation file {path} is unreadable ({type(exc).__name__}); it will be simulated again")
+            with self._db:
+                self._db.execute("BEGIN IMMEDIATE")
+                self._db.execute("DELETE FROM sims WHERE key=?", (key,))
+            try:
+                path.unlink()
+            except OSError:
+                pass
+            return None
         return SimResult(sil, front, times, stats, None, wall if wall is not None else float("nan"))
 
     def put(self, request: SimRequest, result: SimResult) -> None:
-        """Persist ``result``: arrays first (atomic rename), then the index row (one transaction)."""
+        """Persist ``result``: arrays first (atomic rename), then the index row (one transaction).
+
+        The array file carries its request too, so that a lost index can be rebuilt from the files."""
         key = request.key
         if result.ok:
             if result.silhouettes is not None:
@@ -226,8 +334,10 @@ class Store:
                 front_m=np.asarray(result.front_m if result.front_m is not None else [], dtype=float),
                 times=np.asarray(result.times if result.times is not None else [], dtype=float),
                 stats=np.asarray(_canonical(result.stats or {})),
+                request=np.asarray(_canonical(request.to_dict())),
+                wall_seconds=np.asarray(float(result.wall_seconds)),
             )
-            _atomic_write(self._array_path(key), lambda fh: np.savez_compressed(fh, **arrays))
+            atomic_write(self._array_path(key), lambda fh: np.savez_compressed(fh, **arrays))
         status = "ok" if result.ok else "failed"
         with self._db:  # sqlite3 context: BEGIN ... COMMIT
             self._db.execute("BEGIN IMMEDIATE")
@@ -270,16 +380,27 @@ class Store:
         return self.root / "checkpoints" / f"{run_id}.pkl"
 
     def save_checkpoint(self, run_id: str, state) -> None:
-        """Pickle ``state`` (e.g. a dict holding the CMAEvolutionStrategy) atomically."""
+        """Pickle ``state`` (e.g. a dict holding the CMAEvolutionStrategy) atomically; the previous
+        checkpoint is kept as ``<run_id>.prev.pkl`` to fall back on."""
         data = pickle.dumps(state, protocol=pickle.HIGHEST_PROTOCOL)
-        _atomic_write(self._checkpoint_path(run_id), lambda fh: fh.write(data))
+        path = self._checkpoint_path(run_id)
+        if path.exists():
+            os.replace(path, path.with_suffix(".prev.pkl"))
+        atomic_write(path, lambda fh: fh.write(data))
 
     def load_checkpoint(self, run_id: str):
+        """The latest readable checkpoint of ``run_id`` (else the one before it), or None."""
         path = self._checkpoint_path(run_id)
-        if not path.exists():
-            return None
-        with open(path, "rb") as fh:
-            return pickle.load(fh)
+        for candidate in (path, path.with_suffix(".prev.pkl")):
+            if not candidate.exists():
+                continue
+            try:
+                with open(candidate, "rb") as fh:
+                    return pickle.load(fh)
+            except Exception as exc:  # noqa: BLE001  (any failure to unpickle means the file is unusable)
+                self._warn(f"checkpoint {candidate}", f"checkpoint {candidate} is unreadable "
+                           f"({type(exc).__name__}); resuming from the one before it or from the start")
+        return None
 
     # -- housekeeping --------------------------------------------------------------------------
     def _sweep_temp_files(self, older_than_s: float = 3600.0) -> None:

@@ -3,15 +3,13 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
-from mpm.store import json_default
+from mpm.store import atomic_write, json_default
 
 SHEAR_RATES = np.logspace(-2, 4, 200)  # 1/s, the range of the paper's flow-curve plots (Fig. 10)
 
@@ -31,15 +29,9 @@ def _clean(o):
 
 
 def write_json(path, data: Mapping) -> Path:
-    """Write ``data`` as indented JSON atomically (temp file + rename)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write ``data`` as indented strict JSON (non-finite numbers as null), all or nothing."""
     text = json.dumps(_clean(json.loads(json.dumps(data, default=json_default))), indent=2, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    with os.fdopen(fd, "w") as fh:
-        fh.write(text + "\n")
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, lambda fh: fh.write(text + "\n"), mode="t")
 
 
 def flow_curve_png(path, curves: Mapping[str, object], *, dashed: Mapping[str, object] | None = None,
@@ -69,15 +61,24 @@ def flow_curve_png(path, curves: Mapping[str, object], *, dashed: Mapping[str, o
     return save_figure(fig, path)
 
 
+def figure_path(path) -> Path:
+    """The file a figure saved at ``path`` ends up in: ``.png`` is added when the name has no suffix."""
+    path = Path(path)
+    return path if path.suffix else path.with_name(path.name + ".png")
+
+
 def save_figure(fig, path, dpi=None) -> Path:
-    """Lay out, save (creating the folder) and close a matplotlib figure (dpi: the figure's own by default)."""
+    """Lay out, save all or nothing (creating the folder) and close a matplotlib figure; returns the path
+    written (see :func:`figure_path`).  dpi: the figure's own by default."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi if dpi is not None else "figure")
-    plt.close(fig)
+    path = figure_path(path)
+    try:
+        atomic_write(path, lambda fh: fig.savefig(fh, format=path.suffix[1:].lower(),
+                                                  dpi=dpi if dpi is not None else "figure"))
+    finally:
+        plt.close(fig)
     return path
 
 
@@ -123,9 +124,11 @@ def progress_bars(enabled: bool = True):
                TextColumn("{task.fields[info]}"))
     with Progress(*columns, transient=False) as bars:
         tasks: dict = {}
-        sims = bars.add_task("simulations", total=None, info="")
+        sims = bars.add_task("simulations run", total=None, info="")
+        from_store = 0
 
         def callback(event: dict):
+            nonlocal from_store
             kind = event.get("event")
             if kind == "stage":
                 key = event["stage"]
@@ -135,9 +138,11 @@ def progress_bars(enabled: bool = True):
                 bars.update(tasks[event["stage"]], completed=event["generation"],
                             info=f"best loss {event['best_loss']:.5f}")
             elif kind == "simulation":
-                bars.advance(sims)
                 if event.get("cached"):
-                    bars.update(sims, info="(from store)")
+                    from_store += 1
+                    bars.update(sims, info=f"{from_store} results from the store")
+                else:
+                    bars.advance(sims)
             elif kind == "message":
                 bars.console.print(event["text"])
 

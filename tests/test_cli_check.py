@@ -1,4 +1,5 @@
 """``virheo check``: exit 0 / 1 / 2, one line per warning or error, an overlay PNG."""
+import re
 import shutil
 import subprocess
 import sys
@@ -34,16 +35,45 @@ def test_fine_folder(capsys, good, tmp_path):
     overlay = tmp_path / "out" / "overlay.png"
     status, out, err = run(capsys, good, "--overlay", overlay)
     assert status == 0 and err == ""
-    assert "IoU" in out and "status: ok" in out
+    iou = float(re.search(r"IoU (\d\.\d+)", out).group(1))
+    assert iou > 0.9 and "status: ok" in out and f"overlay: {overlay}" in out
     img = np.asarray(Image.open(overlay).convert("RGB"))
     red = (img[..., 0] > 200) & (img[..., 1] < 50) & (img[..., 2] < 50)
     assert red.sum() > 100  # the cuboid outline is drawn
 
 
-def test_default_overlay_name(capsys, good, tmp_path, monkeypatch):
+def test_no_overlay_unless_asked(capsys, good, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert run(capsys, good)[0] == 0
-    assert (tmp_path / "check_ref_Emulated_2.0_3.0_1.png").is_file()
+    before = sorted(p.name for p in tmp_path.iterdir())
+    status, out, err = run(capsys, good)
+    assert status == 0 and "overlay" not in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written into the current folder
+
+
+def test_overlay_path_of_the_wrong_kind(capsys, good, tmp_path):
+    status, out, err = run(capsys, good, "--overlay", tmp_path)
+    assert status == 2 and err.strip() == f"virheo check: error: --overlay {tmp_path} is a folder: name a .png file"
+
+
+def test_setup_outside_the_setup_space_is_refused_like_estimate(capsys, good, tmp_path):
+    (good / "settings.xml").write_text(experiment.settings_xml(10, 20, 40, 1100))
+    status, out, err = run(capsys, good)
+    assert status == 2
+    check_line = err.strip()
+    assert check_line.endswith("width_mm=10 lies outside the setup space 20..70 mm")
+    assert main(["estimate", str(good), "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    estimate_line = capsys.readouterr().err.strip()
+    assert estimate_line.split(": error: ")[1] == check_line.split(": error: ")[1]
+    assert not (tmp_path / "o").exists()
+
+
+def test_white_footage_is_one_summary_line(capsys, good, tmp_path):
+    for k in range(1, 9):
+        Image.new("RGB", (1920, 1080), "white").save(good / f"config_{k:02d}.png")
+    status, out, err = run(capsys, good)
+    assert status == 2
+    assert err.strip().splitlines() == ["virheo check: error: ref_Emulated_2.0_3.0_1: frames 1-8 of 8 show no "
+                                        "material: nothing to estimate from (check the silhouettes)"]
 
 
 def test_shared_folders(capsys, shared_data, tmp_path):

@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from PIL import Image
 
 from studies.cli import main
 
@@ -24,7 +25,8 @@ def test_design_json_and_plot(tmp_path, capsys):
     data = json.loads(capsys.readouterr().out)
     assert data["next"] == {"width_mm": 41.0, "height_mm": 20.0}
     assert 0 < data["score"] <= 2**0.5 and data["valid_candidates"] == 2601
-    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+    with Image.open(png) as im:
+        assert im.format == "PNG" and im.size == (672, 600)  # 5.6 x 5.0 in at 120 dpi
 
 
 def test_design_with_saved_theta_file(tmp_path, capsys):

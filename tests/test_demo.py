@@ -26,22 +26,24 @@ def _png(path):
 
 def test_demo_shortened_with_fake_forward_model(tmp_path):
     out = tmp_path / "demo"
-    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}")
+    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
     proc = subprocess.run([sys.executable, "-m", "studies.cli", "demo", "--out", str(out), "--generations", "3",
-                           "--workers", "0", "--quiet", "--simulator", "fake_forward:simulate"],
+                           "--workers", "0", "--quiet"],
                           env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     result = json.loads((out / "result.json").read_text())
     for who in ("truth", "estimate"):
         assert set(result[who]) == {"eta", "n", "sigma_y"}
     assert result["truth"] == {"eta": 3.0, "n": 0.5, "sigma_y": 15.0}
-    estimate = Material(**result["estimate"])
-    assert result["e_rel"] == pytest.approx(e_rel(Material(3.0, 0.5, 15.0), estimate))
+    truth, estimate = Material(**result["truth"]), Material(**result["estimate"])
+    assert result["e_rel"] == pytest.approx(e_rel(truth, estimate), rel=1e-12)
+    assert len(result["e_rel_per_stage"]) == 2 and result["e_rel_per_stage"][-1] == result["e_rel"]
     assert result["preset"] == "demo" and result["seed"] == 0
     demo = PRESETS["demo"]
     assert result["discretisation"] == {"cell_mm": demo.cell_mm, "ppc": demo.ppc}
     assert result["warnings"] == bound_warnings(estimate)
     assert result["setups"][0] == "40x50" and len(result["setups"]) == 2
+    assert result["simulations_run"] == result["simulations"]  # a fresh run: every simulation was run now
     curve = _png(out / "flow_curve.png")
     assert curve.shape[0] > 100 and curve.shape[1] > 100 and curve.std() > 0  # a drawn figure, not a blank
     assert len(list((out / "overlays").glob("*.png"))) == 8 * len(result["setups"])

@@ -24,10 +24,9 @@ def test_poisson_materials_are_spread_and_in_space():
 
 def test_study_cli_one_vs_two_setups_at_equal_cost(tmp_path):
     out = tmp_path / "emu"
-    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}")
+    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
     proc = subprocess.run([sys.executable, "-m", "studies.cli", "study", "emulation", "--materials", "2", "--runs", "1",
-                           "--generations", "3", "--workers", "0", "--quiet", "--out", str(out),
-                           "--simulator", "fake_forward:simulate"], env=env, capture_output=True, text=True, timeout=300)
+                           "--generations", "3", "--workers", "0", "--quiet", "--out", str(out)], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((out / "emulation.json").read_text())
     assert result["summary"]["cases"] == 2

@@ -117,9 +117,9 @@ def test_bad_xml(folder):
 
 
 def test_write_rejects_bad_masks(tmp_path):
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match=r"need 8 masks .* got shape \(7, 540, 960\)"):
         experiment.write(tmp_path / "x", masks(7), width_mm=30, height_mm=20, camera=Camera.default())
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="masks must be 960x540 or 1920x1080, got 1000x500"):
         experiment.write(tmp_path / "x", np.zeros((8, 500, 1000), bool), width_mm=30, height_mm=20,
                          camera=Camera.default())
 
@@ -129,4 +129,38 @@ def test_inverted_frames_are_suspicious(folder):
         p = folder / f"config_{k:02d}.png"
         Image.fromarray(255 - np.asarray(Image.open(p))).save(p)
     exp = experiment.load(folder)
-    assert sum("inverted" in w for w in exp.warnings) == 2
+    assert [w for w in exp.warnings if "inverted" in w] == [
+        "frames 1-2 are more than half material: inverted colours? (material must be black on white)"]
+
+
+def test_footage_without_evidence():
+    moving = masks()
+    assert experiment.footage_problems(moving) == []
+    empty = moving.copy()
+    empty[[2, 3, 4, 7]] = False
+    assert experiment.footage_problems(empty) == ["frames 3-5, 8 of 8 show no material"]
+    empty[:] = False
+    empty[0, 100, 100] = True
+    assert experiment.footage_problems(empty) == ["frames 2-8 of 8 show no material"]
+    assert experiment.footage_problems(np.stack([moving[0]] * 8)) == [
+        "the material never moves: frames 1-8 are identical"]
+    escaping = moving.copy()
+    escaping[5:, 300:310, 700:] = True
+    assert experiment.footage_problems(escaping) == [
+        "the material leaves the image in frames 6-8 (it reaches the image's edge)"]
+    assert experiment.frame_list([1, 2, 3, 6, 8, 9]) == "1-3, 6, 8-9"
+
+
+def test_paths_of_the_wrong_kind(folder, tmp_path):
+    (folder / "settings.xml").unlink()
+    (folder / "settings.xml").mkdir()
+    one_line_error(folder, "settings.xml is a folder, not a file")
+    f = tmp_path / "plain.txt"
+    f.write_text("x")
+    one_line_error(f, "is a file, not an experiment folder")
+
+
+def test_implausible_density(folder):
+    text = (folder / "settings.xml").read_text()
+    (folder / "settings.xml").write_text(text.replace('RHO="1.175"', 'RHO="0.05"'))
+    one_line_error(folder, r"the density in settings.xml, 50 kg/m\^3 lies outside the accepted range 300..5000")

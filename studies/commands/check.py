@@ -19,13 +19,13 @@ def register(subparsers) -> None:
         "check",
         help="validate an experiment folder (settings, camera, 8 silhouettes) and its setup against frame 1",
         description="Validate an experiment folder: settings.xml, camera_params.xml and config_01..08.png "
-        "(1920x1080 black-on-white silhouettes). Projects the initial cuboid onto frame 1, reports its IoU "
-        "(also with W and H swapped) and writes an overlay PNG. Exit 0: fine; 1: usable but suspicious; "
-        "2: invalid.",
+        "(1920x1080 black-on-white silhouettes). Projects the initial cuboid onto frame 1 and reports its IoU "
+        "(also with W and H swapped); with --overlay, draws it. Exit 0: fine; 1: usable but suspicious; "
+        "2: invalid (the same setups and footage that `virheo estimate` refuses).",
     )
     p.add_argument("dir", metavar="DIR", help="experiment folder")
     p.add_argument("--overlay", metavar="FILE.png", default=None,
-                   help="overlay image of the projected cuboid on frame 1 (default ./check_<name>.png)")
+                   help="write an image of the projected cuboid (setup in mm from settings.xml) over frame 1")
     p.set_defaults(func=run)
 
 
@@ -62,21 +62,25 @@ def overlay_image(exp: experiment.Experiment, *, show_swapped: bool = False, sca
 
 
 def run(args) -> int:
-    exp = experiment.load(args.dir)
-    fit, swapped = experiment.cuboid_fit(exp)
-    notes = list(exp.warnings) + experiment.setup_warnings(exp)
-    flagged = swapped > fit + experiment.SWAP_MARGIN
+    from studies.commands.estimate import load_experiments
 
-    out = Path(args.overlay) if args.overlay else Path.cwd() / f"check_{exp.name}.png"
-    if out.suffix.lower() != ".png":
-        raise ValueError(f"--overlay must name a .png file, got {out}")
-    try:
+    out = Path(args.overlay) if args.overlay else None
+    if out is not None:
+        if out.is_dir():
+            raise ValueError(f"--overlay {out} is a folder: name a .png file")
+        if out.suffix.lower() != ".png":
+            raise ValueError(f"--overlay must name a .png file, got {out}")
+    exp = load_experiments([args.dir], "check")[0]
+    fit, swapped = experiment.cuboid_fit(exp)
+    notes = experiment.setup_warnings(exp)
+    flagged = swapped > fit + experiment.SWAP_MARGIN
+    if out is not None:
         from PIL import Image
 
-        out.parent.mkdir(parents=True, exist_ok=True)
-        Image.fromarray(overlay_image(exp, show_swapped=flagged)).save(out)
-    except OSError as exc:
-        raise ValueError(f"cannot write overlay {out}: {exc.strerror or exc}") from None
+        from mpm.store import atomic_write
+
+        image = Image.fromarray(overlay_image(exp, show_swapped=flagged))
+        atomic_write(out, lambda fh: image.save(fh, format="PNG"))
 
     fractions = exp.frames.reshape(len(exp.frames), -1).mean(axis=1)
     w, h = exp.image_size
@@ -88,8 +92,10 @@ def run(args) -> int:
         m = exp.initial_material
         print(f"  initial material: eta {m['eta']:.4g} Pa s^n, n {m['n']:.4g}, sigma_y {m['sigma_y']:.4g} Pa")
     print(f"  initial cuboid vs frame 1: IoU {fit:.3f} (W and H swapped: {swapped:.3f})")
-    print(f"  overlay: {out}" + (" (red: stated setup, blue: swapped)" if flagged else " (red: stated setup)"))
+    if out is not None:
+        print(f"  overlay: {out}" + (" (red: stated setup, blue: swapped)" if flagged else " (red: stated setup)"))
     for note in notes:
         sys.stderr.write(f"virheo check: warning: {note}\n")
-    print("  status: " + (f"usable but suspicious ({len(notes)} warning{'s' * (len(notes) > 1)})" if notes else "ok"))
-    return 1 if notes else 0
+    warned = len(notes) + len(exp.warnings)
+    print("  status: " + (f"usable but suspicious ({warned} warning{'s' * (warned > 1)})" if warned else "ok"))
+    return 1 if warned else 0

@@ -25,7 +25,8 @@ def register(subparsers) -> None:
     p.add_argument("--theta", default="reference", metavar="reference|PATH",
                    help="Theta map: 'reference' (the authors' published map, default) or a JSON file saved by ThetaMap.save")
     p.add_argument("--plot", default=None, metavar="FILE.png",
-                   help="write a heat map of S_p over the (W, H) grid with the done and chosen setups marked")
+                   help="write a heat map of S_p over the (W, H) grid in mm with the done and chosen setups marked "
+                   "(.png is added to a name without a suffix)")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of text")
     p.set_defaults(func=run)
 
@@ -37,15 +38,20 @@ def run(args) -> int:
 
     material = Material.parse(args.material).check_in_space()
     done = [Setup.parse(text).check_in_space() for text in args.done]
+    plot_path = None
     if args.plot is not None:
-        parent = Path(args.plot).expanduser().resolve().parent
-        if not parent.is_dir():
-            raise FileNotFoundError(f"--plot: folder {parent} does not exist")
+        from studies.report import figure_path
+
+        if Path(args.plot).is_dir():
+            raise ValueError(f"--plot {args.plot} is a folder: name a .png file")
+        plot_path = figure_path(Path(args.plot).expanduser())
+        if not plot_path.resolve().parent.is_dir():
+            raise ValueError(f"--plot: folder {plot_path.resolve().parent} does not exist")
     theta = load(args.theta)
     ranking = rank_setups(material, done, theta=theta)
     best, score = ranking.best()
-    if args.plot is not None:
-        plot(ranking, best, args.plot)
+    if plot_path is not None:
+        plot_path = plot(ranking, best, plot_path)
     if args.json:
         print(json.dumps({
             "material": material.to_dict(),
@@ -54,19 +60,22 @@ def run(args) -> int:
             "next": best.to_dict(),
             "score": score,
             "valid_candidates": len(ranking),
-            "plot": str(args.plot) if args.plot else None,
+            "plot": str(plot_path) if plot_path else None,
         }, indent=1))
     else:
         print(f"next setup: {best} mm (width x height), S_p = {score:.6f}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; Theta map: {theta.name}")
-        if args.plot:
-            print(f"  heat map written to {args.plot}")
+        if plot_path:
+            print(f"  heat map written to {plot_path}")
     return 0
 
 
-def plot(ranking, best, path) -> None:
-    """Heat map of S_p over the candidate grid (NaN = invalid), done setups as crosses, the choice as a star."""
+def plot(ranking, best, path) -> Path:
+    """Heat map of S_p over the candidate grid (NaN = invalid), done setups as crosses, the choice as a star;
+    returns the file written."""
+    from studies.report import save_figure
+
     import matplotlib
 
     matplotlib.use("Agg")
@@ -84,6 +93,4 @@ def plot(ranking, best, path) -> None:
     ax.set(xlabel="width W [mm]", ylabel="height H [mm]",
            title=f"eta={m.eta:.3g} Pa s^n, n={m.n:.3g}, sigma_y={m.sigma_y:.3g} Pa")
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, fontsize=8, frameon=False)
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    return save_figure(fig, path)

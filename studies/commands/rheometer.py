@@ -5,6 +5,8 @@ import json
 
 import numpy as np
 
+from studies.commands.context import real
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -16,8 +18,8 @@ def register(subparsers) -> None:
         "range (default 1..100 1/s). Optionally score a given material (e.g. a video estimate) on the same range.",
     )
     p.add_argument("file", metavar="FILE.csv", help="instrument CSV export")
-    p.add_argument("--lo", type=float, default=1.0, help="lowest shear rate of the fit, 1/s (default 1)")
-    p.add_argument("--hi", type=float, default=100.0, help="highest shear rate of the fit, 1/s (default 100)")
+    p.add_argument("--lo", type=real, default=1.0, help="lowest shear rate of the fit, 1/s (default 1)")
+    p.add_argument("--hi", type=real, default=100.0, help="highest shear rate of the fit, 1/s (default 100)")
     p.add_argument("--material", default=None, metavar="ETA,N,SIGMA_Y",
                    help="also report the RMS log10-stress error of this material (SI: Pa s^n, -, Pa) on the fit range")
     p.add_argument("--json", action="store_true", help="print the curve and fit as JSON")

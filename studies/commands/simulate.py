@@ -4,33 +4,44 @@ from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from mpm.params import FLOW_RULES
+from studies.commands.context import integer, real
 
 HELP = """Simulate a Herschel-Bulkley dam-break for 1/3 s (8 frames at 24 fps).
 Units: --material ETA,N,SIGMA_Y in SI (Pa s^n, -, Pa); --setup WIDTHxHEIGHT in mm (20..70);
---density in kg/m^3; --cell-mm grid cell width in mm."""
+--density in kg/m^3; --cell-mm grid cell width in mm.
+Accepted materials: the paper's material space (eta 1e-4..30 Pa s^n, n 0.3..1, sigma_y 0..40 Pa),
+and beyond it with a warning up to eta 3000 Pa s^n, n 0.1..2 (n > 1: shear-thickening), sigma_y 4000 Pa;
+values beyond these limits are refused (extreme ones, e.g. eta = 1e30, make the solver crawl)."""
 
 
 def register(sub) -> None:
     p = sub.add_parser("simulate", help="simulate a dam-break and render its silhouettes",
                        description=HELP, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--material", required=True, metavar="ETA,N,SIGMA_Y", help="SI: Pa s^n, -, Pa")
+    p.add_argument("--material", required=True, metavar="ETA,N,SIGMA_Y",
+                   help="eta [Pa s^n], n [-], sigma_y [Pa], e.g. 3,0.5,15")
     p.add_argument("--setup", metavar="WxH", help="width x height in mm (default: the experiment's)")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--experiment", metavar="DIR", help="experiment folder: camera, density, depth and footage")
     src.add_argument("--camera", metavar="XML", help="camera_params.xml (default: the built-in default camera)")
-    p.add_argument("--density", type=float, default=None, help="kg/m^3 (default 1000, or the experiment's)")
-    p.add_argument("--depth-mm", type=float, default=None, help="box depth in mm (default 40, or the experiment's)")
-    p.add_argument("--dim", type=int, choices=(2, 3), default=3, help="3D or 2D plane strain (default 3)")
-    p.add_argument("--cell-mm", type=float, default=None, help="grid cell width in mm (default: the solver's)")
-    p.add_argument("--ppc", type=int, default=None,
+    p.add_argument("--density", type=real, default=None, metavar="KG_M3",
+                   help="density in kg/m^3 (default 1000, or the experiment's)")
+    p.add_argument("--depth-mm", type=real, default=None, metavar="MM",
+                   help="box depth in mm (default 40, or the experiment's)")
+    p.add_argument("--dim", type=integer, choices=(2, 3), default=3, help="3 (default) or 2 (plane strain)")
+    p.add_argument("--cell-mm", type=real, default=None, metavar="MM",
+                   help="grid cell width in mm (default: the solver's)")
+    p.add_argument("--ppc", type=integer, default=None,
                    help="particles per cell per axis, 1-4 (default: the solver's; the paper: --cell-mm 1.26 --ppc 2)")
-    p.add_argument("--flow-rule", choices=FLOW_RULES, default=FLOW_RULES[0])
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--flow-rule", choices=FLOW_RULES, default=FLOW_RULES[0], metavar="RULE",
+                   help="plastic flow rule, one of: %(choices)s (default %(default)s: the paper's, appendix B)")
+    p.add_argument("--out", required=True, metavar="DIR",
+                   help="output folder (silhouette_01..08.png, flow.gif, particles.npz, summary.json)")
     p.set_defaults(func=run)
 
 
@@ -43,27 +54,46 @@ def _mask_png(mask: np.ndarray, path: Path) -> None:
 def run(args) -> int:
     from mpm import camera as cam
     from mpm import experiment as xp
+    from mpm.ranges import check_density, check_simulable
     from similarity.space import Material, Setup
     from studies.report import overlay_pngs, write_json
 
     material = Material.parse(args.material)
+    check_simulable(material.eta, material.n, material.sigma_y)
+    if not material.in_space():
+        try:
+            material.check_in_space()
+        except ValueError as exc:
+            warnings.warn(f"{exc}: simulated, but estimation never searches there")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a folder: name a folder")
+    if args.camera and Path(args.camera).is_dir():
+        raise ValueError(f"--camera {args.camera} is a folder: name a camera_params.xml file")
     exp = xp.load(args.experiment) if args.experiment else None
     if args.setup:
         setup = Setup.parse(args.setup).check_in_space()
     elif exp is not None:
         setup = Setup(exp.width_mm, exp.height_mm)
+        try:
+            setup.check_in_space()
+        except ValueError as exc:
+            raise ValueError(f"{exp.name}: {exc}") from None
     else:
         raise ValueError("--setup WxH is required without --experiment")
     if exp is not None and (abs(setup.width_mm - exp.width_mm) > 0.5 or abs(setup.height_mm - exp.height_mm) > 0.5):
         raise ValueError(f"--setup {setup} does not match the experiment's {exp.width_mm:g}x{exp.height_mm:g} mm")
-    if args.density is not None and not args.density > 0:
-        raise ValueError(f"density={args.density} kg/m^3 is unphysical: it must be > 0")
+    if args.density is not None:
+        check_density(args.density, "--density")
     if args.cell_mm is not None and not args.cell_mm > 0:
-        raise ValueError(f"cell-mm={args.cell_mm} must be > 0")
+        raise ValueError(f"--cell-mm {args.cell_mm:g} must be > 0 mm")
+    if args.depth_mm is not None and not args.depth_mm > 0:
+        raise ValueError(f"--depth-mm {args.depth_mm:g} must be > 0 mm")
+    if args.ppc is not None and not 1 <= args.ppc <= 4:
+        raise ValueError(f"--ppc {args.ppc} must be 1..4")
     camera = exp.camera if exp else (cam.Camera.from_xml(args.camera) if args.camera else cam.Camera.default())
     density = args.density or (exp.density if exp else 1000.0)
     depth_mm = args.depth_mm or (exp.depth_mm if exp else 40.0)
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
 
     import mpm

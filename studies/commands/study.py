@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from similarity.presets import PRESETS
+from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run
 
 
 def register(subparsers) -> None:
@@ -13,37 +13,30 @@ def register(subparsers) -> None:
     e = sub.add_parser("emulation", help="one setup vs two setups on emulated footage (section 7.1, Fig. 10)",
                        description="Materials by Poisson-disk sampling, several runs each from random first setups; "
                        "two-setup ViRheometry vs one setup at equal simulation count.")
-    e.add_argument("--materials", type=int, default=6, help="number of materials (default 6)")
-    e.add_argument("--runs", type=int, default=3, help="runs per material from random first setups (default 3)")
-    e.add_argument("--preset", default="demo", choices=tuple(PRESETS), help="estimation preset (default demo)")
-    e.add_argument("--generations", type=int, default=None, metavar="N", help="generations per stage (default: preset)")
-    e.add_argument("--workers", type=int, default=None, metavar="K")
-    e.add_argument("--scheduler", default=None, metavar="ADDR", help="dask.distributed scheduler address")
-    e.add_argument("--seed", type=int, default=0)
-    e.add_argument("--store", default=None, metavar="PATH", help="simulation store (default OUT/store)")
-    e.add_argument("--out", default="./virheo-emulation", metavar="OUT")
-    e.add_argument("--quiet", action="store_true")
-    e.add_argument("--simulator", default=None, help=argparse.SUPPRESS)
+    e.add_argument("--materials", type=integer, default=6, metavar="M", help="number of materials (default 6)")
+    e.add_argument("--runs", type=integer, default=3, metavar="R",
+                   help="runs per material from random first setups (default 3)")
+    add_preset_option(e, default="demo")
+    e.add_argument("--seed", type=integer, default=0, help="seed of the materials, setups and CMA-ES (default 0)")
+    add_run_options(e, default_out="./virheo-emulation")
     e.set_defaults(func=run_emulation)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def run_emulation(args: argparse.Namespace) -> int:
-    from mpm import batch
-    from studies.commands.estimate import check_args, run_context
     from studies.emulation import timed_study
-    from studies.report import progress_bars
 
     for name in ("materials", "runs"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name} {getattr(args, name)} must be >= 1")
-    check_args(args)
-    with run_context(args) as (out, store, executor), progress_bars(not args.quiet) as progress:
-        result = timed_study(out, materials=args.materials, runs=args.runs, preset=args.preset,
-                             generations=args.generations, seed=args.seed, store=store, executor=executor,
-                             progress=progress, simulator=args.simulator or batch.DEFAULT_SIMULATOR)
+    check_run_options(args)
+    with open_run(args) as run:
+        result = timed_study(run.out, materials=args.materials, runs=args.runs, preset=args.preset,
+                             generations=args.generations, seed=args.seed, store=run.store, executor=run.executor,
+                             progress=run.progress, simulator=run.simulator)
     s = result["summary"]
-    print((out / "emulation.md").read_text())
+    print((run.out / "emulation.md").read_text())
     print(f"good: one setup {s['good_single']}/{s['cases']}, two setups {s['good_two_setups']}/{s['cases']}; "
-          f"{result['wall_seconds']:.0f} s; report in {out}")
+          f"{run.simulated} simulations run, {run.from_store} results from the store, "
+          f"{result['wall_seconds']:.0f} s; report in {run.out}")
     return 0

@@ -1,0 +1,40 @@
+"""What the forward model accepts: densities, and materials beyond the paper's material space.
+
+The paper's material space (section 3.1) is where estimation searches.  A single simulation may go
+beyond it, up to 100 times its bounds; extreme values (eta = 1e30 Pa s^n) make the solver crawl and are
+refused.
+"""
+from __future__ import annotations
+
+import math
+
+DENSITY_RANGE_KG_M3 = (300.0, 5000.0)
+# accepted for one simulation (SI): eta in Pa s^n, n dimensionless, sigma_y in Pa
+ETA_LIMIT = 3000.0
+N_RANGE_SIMULABLE = (0.1, 2.0)  # n > 1 (shear-thickening) is outside the paper's space: simulated, with a warning
+SIGMA_Y_LIMIT = 4000.0
+
+
+def check_density(density: float, what: str = "density") -> float:
+    """``density`` in kg/m^3, or ValueError with the accepted range."""
+    lo, hi = DENSITY_RANGE_KG_M3
+    try:
+        value = float(density)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} {density!r} is not a number of kg/m^3") from None
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise ValueError(f"{what} {density:g} kg/m^3 lies outside the accepted range {lo:g}..{hi:g} kg/m^3")
+    return value
+
+
+def check_simulable(eta: float, n: float, sigma_y: float) -> None:
+    """ValueError when a (positive, finite) material lies beyond what the solver simulates in reasonable time."""
+    lo, hi = N_RANGE_SIMULABLE
+    for name, value, ok, accepted in (
+        ("eta", eta, eta <= ETA_LIMIT, f"eta <= {ETA_LIMIT:g} Pa s^n"),
+        ("n", n, lo <= n <= hi, f"{lo:g} <= n <= {hi:g}"),
+        ("sigma_y", sigma_y, sigma_y <= SIGMA_Y_LIMIT, f"sigma_y <= {SIGMA_Y_LIMIT:g} Pa"),
+    ):
+        if not ok:
+            raise ValueError(f"{name}={value:g} lies beyond what the solver simulates in reasonable time "
+                             f"(accepted: {accepted})")

@@ -1,0 +1,178 @@
+"""The run context shared by the long commands (``demo``, ``estimate``, ``study``): output folder,
+simulation store, executor (local processes or a dask scheduler), progress bars and the counts a
+run reports.
+
+``$VIRHEO_SIMULATOR`` (``module:function``) replaces the MPM forward model; the test-suite uses it
+to run the commands with a cheap stand-in.  It is not a user setting.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import time
+from collections.abc import Sequence
+from contextlib import ExitStack, contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+
+SIMULATOR_ENV = "VIRHEO_SIMULATOR"
+
+
+class Names(Sequence):
+    """Option ``choices`` read from their home module (``"module:NAME"``) when first needed, so that
+    building the parser does not import the estimator or Taichi."""
+
+    def __init__(self, where: str):
+        self.where, self._names = where, None
+
+    def _get(self) -> tuple:
+        if self._names is None:
+            module, _, name = self.where.partition(":")
+            self._names = tuple(getattr(importlib.import_module(module), name))
+        return self._names
+
+    def __getitem__(self, i):
+        return self._get()[i]
+
+    def __len__(self) -> int:
+        return len(self._get())
+
+    def __contains__(self, value) -> bool:
+        return value in self._get()
+
+    def __iter__(self):
+        return iter(self._get())
+
+
+def real(text: str) -> float:
+    """argparse ``type`` for a finite real number, with the project's message."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a number") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"'{text}' is not a finite number")
+    return value
+
+
+def integer(text: str) -> int:
+    """argparse ``type`` for a whole number, with the project's message."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
+
+
+PRESET_NAMES = Names("similarity.estimate:PRESETS")
+
+
+def add_preset_option(p: argparse.ArgumentParser, default: str) -> None:
+    p.add_argument("--preset", default=default, choices=PRESET_NAMES, metavar="NAME",
+                   help="accuracy/time trade-off, one of: %(choices)s (default %(default)s; "
+                   "costs in the user guide)")
+
+
+def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None) -> None:
+    """``--out --store --workers --scheduler --generations --seed --quiet`` with their help texts."""
+    if default_out is None:
+        p.add_argument("--out", required=True, metavar="OUT",
+                       help="output folder (result.json, flow_curve.png, overlays/)")
+    else:
+        p.add_argument("--out", default=default_out, metavar="OUT",
+                       help=f"output folder (default {default_out})")
+    p.add_argument("--store", default=None, metavar="PATH",
+                   help="simulation store folder, shared between runs (default OUT/store)")
+    p.add_argument("--workers", type=integer, default=None, metavar="K",
+                   help="local worker processes (default: one per CPU core; 0: in this process)")
+    p.add_argument("--scheduler", default=None, metavar="ADDR",
+                   help="dask.distributed scheduler address, e.g. tcp://host:8786 (instead of --workers)")
+    p.add_argument("--generations", type=integer, default=None, metavar="N",
+                   help="CMA-ES generations per stage (default: the preset's)")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def check_run_options(args) -> None:
+    """The project's own messages for out-of-range numbers and paths of the wrong kind."""
+    if args.generations is not None and args.generations < 1:
+        raise ValueError(f"--generations {args.generations} must be >= 1")
+    if args.workers is not None and args.workers < 0:
+        raise ValueError(f"--workers {args.workers} must be >= 0 (0: simulate in this process)")
+    if args.workers is not None and args.scheduler:
+        raise ValueError("--workers and --scheduler exclude each other: the scheduler's workers do the work")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a folder: name a folder")
+    store = Path(args.store) if args.store else out / "store"
+    if store.exists() and not store.is_dir():
+        raise ValueError(f"--store {store} is a file, not a folder: name a folder")
+
+
+def simulator() -> str:
+    from mpm import batch
+
+    return os.environ.get(SIMULATOR_ENV) or batch.DEFAULT_SIMULATOR
+
+
+@dataclass
+class Run:
+    """What a long command works with, and what it counts for its report."""
+
+    out: Path
+    store: object
+    executor: object
+    progress: object  # callback for the estimator's progress events, or None
+    simulator: str
+    simulated: int = 0  # simulations run by this command
+    from_store: int = 0  # results served from the store (simulations or cached losses)
+    started: float = field(default_factory=time.perf_counter)
+
+    def event(self, ev: dict) -> None:
+        if ev.get("event") == "simulation":
+            if ev.get("cached"):
+                self.from_store += 1
+            else:
+                self.simulated += 1
+
+    @property
+    def wall_seconds(self) -> float:
+        return time.perf_counter() - self.started
+
+    def counts(self) -> dict:
+        """For result.json: the same numbers the progress bar and the printed summary show."""
+        return {"simulations_run": self.simulated, "results_from_store": self.from_store,
+                "wall_seconds": self.wall_seconds}
+
+    def cost_line(self, total_simulations: int) -> str:
+        """'84 simulations (60 run now, 24 from the store) in 95 s', or that all came from the store."""
+        if self.simulated == 0:
+            return f"{total_simulations} simulations, all served from the store (none run now)"
+        rest = max(total_simulations - self.simulated, 0)
+        return (f"{total_simulations} simulations ({self.simulated} run now"
+                + (f", {rest} from the store" if rest else "") + f") in {self.wall_seconds:.0f} s")
+
+
+@contextmanager
+def open_run(args):
+    """A :class:`Run` for ``args`` (see :func:`add_run_options`); the executor is shut down afterwards."""
+    from mpm import batch
+    from mpm.store import Store
+    from studies.report import progress_bars
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    store = Store(Path(args.store) if args.store else out / "store")
+    executor = batch.connect(args.scheduler) if args.scheduler else batch.local_executor(args.workers)
+    with ExitStack() as stack:
+        stack.callback(batch.shutdown, executor)
+        stack.callback(store.close)
+        bars = stack.enter_context(progress_bars(not args.quiet))
+        run = Run(out, store, executor, None, simulator())
+
+        def progress(ev: dict) -> None:
+            run.event(ev)
+            if bars:
+                bars(ev)
+
+        run.progress = progress
+        yield run

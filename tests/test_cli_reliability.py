@@ -1,0 +1,200 @@
+"""The CLI's error boundary, footage without evidence, shared options, honest counters and quiet output."""
+import json
+import os
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mpm import experiment
+from mpm.camera import Camera
+from mpm.silhouette import box_mask
+from studies.cli import main
+
+TESTS = Path(__file__).resolve().parent
+FAST = ["--generations", "2", "--workers", "0", "--quiet"]
+
+
+def one_error_line(capsys, argv) -> str:
+    assert main(argv) == 2
+    out, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+@pytest.fixture()
+def fake(monkeypatch):
+    monkeypatch.setenv("VIRHEO_SIMULATOR", "fake_forward:simulate")
+
+
+@pytest.fixture()
+def folder(tmp_path):
+    cam = Camera.default()
+    frames = np.stack([box_mask(cam, (30 + 2 * k) / 1000, 0.02, 0.04) for k in range(8)])
+    return experiment.write(tmp_path / "ref_Emulated_2.0_3.0_1", frames, width_mm=30, height_mm=20, camera=cam)
+
+
+def test_out_that_is_a_file(capsys, tmp_path, fake):
+    f = tmp_path / "result"
+    f.write_text("x")
+    line = one_error_line(capsys, ["demo", "--out", str(f), *FAST])
+    assert line == f"virheo demo: error: --out {f} is a file, not a folder: name a folder"
+
+
+def test_store_that_is_a_file(capsys, tmp_path, folder):
+    f = tmp_path / "store"
+    f.write_text("x")
+    line = one_error_line(capsys, ["estimate", str(folder), "--out", str(tmp_path / "o"), "--store", str(f), *FAST])
+    assert line == f"virheo estimate: error: --store {f} is a file, not a folder: name a folder"
+    assert not (tmp_path / "o").exists()
+
+
+def test_out_below_a_file_reaches_the_boundary_as_one_line(capsys, tmp_path, fake):
+    f = tmp_path / "file"
+    f.write_text("x")
+    line = one_error_line(capsys, ["demo", "--out", str(f / "sub"), *FAST])
+    assert line.startswith("virheo demo: error: ") and str(f) in line and "name a folder, or move the file" in line
+
+
+def test_plot_that_is_a_folder(capsys, tmp_path):
+    line = one_error_line(capsys, ["design", "--material", "3,0.5,3", "--done", "29x59", "--plot", str(tmp_path)])
+    assert line == f"virheo design: error: --plot {tmp_path} is a folder: name a .png file"
+
+
+def test_plot_reports_the_file_it_wrote(capsys, tmp_path):
+    assert main(["design", "--material", "3,0.5,3", "--done", "29x59", "--plot", str(tmp_path / "heat")]) == 0
+    out = capsys.readouterr().out
+    assert f"heat map written to {tmp_path / 'heat.png'}" in out
+    assert (tmp_path / "heat.png").read_bytes()[:4] == b"\x89PNG" and not (tmp_path / "heat").exists()
+
+
+def test_white_footage_is_refused_before_any_simulation(capsys, tmp_path, folder, fake):
+    for k in range(1, 9):
+        Image.new("RGB", (1920, 1080), "white").save(folder / f"config_{k:02d}.png")
+    line = one_error_line(capsys, ["estimate", str(folder), "--out", str(tmp_path / "o"), *FAST])
+    assert line == ("virheo estimate: error: ref_Emulated_2.0_3.0_1: frames 1-8 of 8 show no material: "
+                    "nothing to estimate from (check the silhouettes)")
+    assert not (tmp_path / "o").exists()
+
+
+def test_still_and_escaping_footage_are_refused(capsys, tmp_path, folder, fake):
+    still = experiment.load(folder).frames[0]
+    experiment.write(folder, np.stack([still] * 8), width_mm=30, height_mm=20, camera=Camera.default())
+    line = one_error_line(capsys, ["estimate", str(folder), "--out", str(tmp_path / "o"), *FAST])
+    assert line.endswith("the material never moves: frames 1-8 are identical: nothing to estimate from "
+                         "(check the silhouettes)")
+    frames = np.stack([still] * 8)
+    frames[6:, 200:260, 900:] = True  # frames 7 and 8 reach the right edge
+    experiment.write(folder, frames, width_mm=30, height_mm=20, camera=Camera.default())
+    line = one_error_line(capsys, ["estimate", str(folder), "--out", str(tmp_path / "o"), *FAST])
+    assert "the material leaves the image in frames 7-8" in line
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--workers", "-1"], "--workers -1 must be >= 0 (0: simulate in this process)"),
+    (["--generations", "0"], "--generations 0 must be >= 1"),
+    (["--density", "50"], "--density 50 kg/m^3 lies outside the accepted range 300..5000 kg/m^3"),
+])
+def test_numbers_are_checked_with_the_projects_messages(capsys, tmp_path, argv, message, fake):
+    line = one_error_line(capsys, ["demo", "--out", str(tmp_path / "d"), *argv])
+    assert line == f"virheo demo: error: {message}"
+    assert not (tmp_path / "d").exists()
+
+
+def test_a_word_where_a_number_belongs(capsys, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["demo", "--out", str(tmp_path / "d"), "--density", "heavy"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip() == "virheo demo: error: argument --density: 'heavy' is not a number"
+
+
+def test_simulate_states_and_guards_its_ranges(capsys, tmp_path):
+    line = one_error_line(capsys, ["simulate", "--material", "1e30,0.5,3", "--setup", "30x30",
+                                   "--out", str(tmp_path / "s")])
+    assert line == ("virheo simulate: error: eta=1e+30 lies beyond what the solver simulates in reasonable time "
+                    "(accepted: eta <= 3000 Pa s^n)")
+    f = tmp_path / "file"
+    f.write_text("x")
+    assert main(["simulate", "--material", "3,1.5,3", "--setup", "30x30", "--out", str(f)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["virheo simulate: warning: n=1.5 lies outside the material space 0.3..1: simulated, but "
+                   "estimation never searches there",
+                   f"virheo simulate: error: --out {f} is a file, not a folder: name a folder"]
+    with pytest.raises(SystemExit):
+        main(["simulate", "--help"])
+    help_text = capsys.readouterr().out
+    assert "n > 1: shear-thickening" in help_text and "one of: paper, yue2015" in help_text
+
+
+def test_demo_accepts_the_shared_run_options(tmp_path, capsys, fake):
+    store = tmp_path / "shared-store"
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--store", str(store), *FAST]) == 0
+    first = capsys.readouterr().out
+    result = json.loads((out / "result.json").read_text())
+    assert (store / "index.sqlite").is_file() and not (out / "store").exists()
+    # a fresh run simulates exactly what the estimate counts; the summary says the same
+    assert result["simulations_run"] == result["simulations"] > 0
+    assert f"{result['simulations']} simulations ({result['simulations']} run now) in " in first
+    # results are written with the user's normal mode, not 0600
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert stat.S_IMODE((out / "result.json").stat().st_mode) == 0o666 & ~umask
+    # the same run again is served from the store and says so
+    assert main(["demo", "--out", str(out), "--store", str(store), *FAST]) == 0
+    again = capsys.readouterr().out
+    result2 = json.loads((out / "result.json").read_text())
+    assert result2["simulations_run"] == 0 and result2["estimate"] == result["estimate"]
+    assert f"{result['simulations']} simulations, all served from the store (none run now)" in again
+
+
+def test_version_and_every_option_has_help():
+    import argparse
+
+    from studies.cli import build_parser
+
+    proc = subprocess.run([sys.executable, "-m", "studies.cli", "--version"], capture_output=True, text=True,
+                          cwd=TESTS.parent, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.startswith("virheo ") and proc.stdout.split()[1][0].isdigit()
+    parser = build_parser()
+    stack = [parser]
+    seen = 0
+    while stack:
+        p = stack.pop()
+        for action in p._actions:  # the test reads argparse's structure; the CLI itself does not
+            if isinstance(action, argparse._SubParsersAction):
+                stack.extend(action.choices.values())
+            elif action.option_strings and action.dest not in ("help", "version"):
+                seen += 1
+                assert action.help and action.help != argparse.SUPPRESS, (p.prog, action.option_strings)
+    assert seen > 40
+
+
+
+def test_disk_full_and_damaged_files_are_one_line(capsys, monkeypatch, tmp_path):
+    import errno
+    import sqlite3
+
+    from studies.commands import design
+
+    def full(args):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "out" / "result.json"))
+
+    monkeypatch.setattr(design, "run", full)
+    argv = ["design", "--material", "3,0.5,3", "--done", "29x59"]
+    assert one_error_line(capsys, argv) == (
+        f"virheo design: error: {tmp_path / 'out' / 'result.json'}: No space left on device; free some disk "
+        f"space and run the same command again (finished simulations are kept)")
+
+    def locked(args):
+        raise sqlite3.OperationalError("database is locked")
+
+    monkeypatch.setattr(design, "run", locked)
+    assert one_error_line(capsys, argv) == (
+        "virheo design: error: the simulation store's index cannot be used (database is locked); "
+        "if another run uses the same store, wait for it; else pass another --store")
