@@ -11,7 +11,7 @@ import re
 import sys
 
 # name -> module under studies.commands; each module defines register(subparsers)
-COMMANDS = ("demo", "design", "simulate", "check", "estimate", "study", "rheometer")
+COMMANDS = ("demo", "design", "simulate", "check", "estimate", "study", "rheometer", "report")
 
 
 class UsageError(Exception):
