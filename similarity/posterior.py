@@ -210,13 +210,8 @@ class Run:
     setups: list = field(default_factory=list)
 
 
-def load_run(folder, *, store=None, executor=None) -> Run:
-    """Read ``folder/result.json`` and rebuild its experiments (folders, or emulated footage from the store)."""
-    from mpm import batch
-    from mpm.store import Store
-    from similarity.estimate import emulate, get_preset
-    from similarity.space import Setup
-
+def read_result(folder) -> tuple[dict, Material]:
+    """``folder/result.json`` and its estimate; FileNotFoundError / one-line ValueError otherwise."""
     folder = Path(folder)
     if not folder.is_dir():
         raise FileNotFoundError(f"run folder {folder} not found")
@@ -230,7 +225,38 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     est = result.get("estimate") if isinstance(result, dict) else None
     if not isinstance(est, dict) or set(est) != {"eta", "n", "sigma_y"}:
         raise ValueError(f"{path} holds no estimate (eta, n, sigma_y)")
-    estimate = Material(float(est["eta"]), float(est["n"]), float(est["sigma_y"]))
+    try:
+        return result, Material(float(est["eta"]), float(est["n"]), float(est["sigma_y"]))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: bad estimate ({exc})") from None
+
+
+def read_posterior(folder) -> dict:
+    """``folder/posterior.json`` written by :func:`analyse` (``virheo report``)."""
+    path = Path(folder) / "posterior.json"
+    if not path.is_file():
+        raise ValueError(f"{folder}: no posterior.json; run `virheo report {folder}` first")
+    try:
+        s = json.loads(path.read_text())
+        cov = np.asarray(s["posterior"]["cov_normalised"], float)
+        Material(**s["posterior"]["mean"])
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a posterior summary ({exc})") from None
+    if cov.shape != (3, 3):
+        raise ValueError(f"{path}: covariance is not 3 x 3")
+    return s
+
+
+def load_run(folder, *, store=None, executor=None) -> Run:
+    """Read ``folder/result.json`` and rebuild its experiments (folders, or emulated footage from the store)."""
+    from mpm import batch
+    from mpm.store import Store
+    from similarity.estimate import emulate, get_preset
+    from similarity.space import Setup
+
+    folder = Path(folder)
+    result, estimate = read_result(folder)
+    path = folder / "result.json"
     preset = get_preset(result.get("preset", "quick"))
     simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
     store = store if store is not None else Store(folder / "store")

@@ -69,4 +69,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"E_rel = {result['e_rel']:.4f} (eq. 44) after setups {' + '.join(est.setups)} mm; "
           f"{est.simulations} simulations in {wall:.0f} s")
     print(f"report: {out / 'result.json'}")
+    print(f"uncertainty (posterior, credible intervals, next setup by information gain, HTML page): virheo report {out}")
     return 0

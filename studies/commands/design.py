@@ -17,16 +17,22 @@ def register(subparsers) -> None:
         f"Units: material in SI (eta in Pa s^n, n dimensionless, sigma_y in Pa); setups WxH in millimetres "
         f"(width along the flow, then height). Example: {EXAMPLE}",
     )
-    p.add_argument("--material", required=True, metavar="ETA,N,SIGMA_Y",
+    p.add_argument("--material", default=None, metavar="ETA,N,SIGMA_Y",
                    help="current estimate in SI: eta [Pa s^n], n [-], sigma_y [Pa], e.g. 3.14,0.74,1.24 "
                    "(must lie in the material space: eta 1e-4..30, n 0.3..1, sigma_y 0..40)")
-    p.add_argument("--done", required=True, action="append", metavar="WxH",
+    p.add_argument("--done", default=None, action="append", metavar="WxH",
                    help="a setup already run, width x height in mm (20..70), e.g. 29x59; repeat for several")
     p.add_argument("--theta", default="reference", metavar="reference|PATH",
                    help="Theta map: 'reference' (the authors' published map, default) or a JSON file saved by ThetaMap.save")
     p.add_argument("--plot", default=None, metavar="FILE.png",
                    help="write a heat map of S_p over the (W, H) grid with the done and chosen setups marked")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of text")
+    p.add_argument("--criterion", default="perpendicularity", choices=("perpendicularity", "eig"),
+                   help="perpendicularity S_p (section 6, default) or eig: expected information gain in nats "
+                   "(linear-Gaussian approximation, docs/uncertainty.md)")
+    p.add_argument("--posterior", default=None, metavar="RUN",
+                   help="run folder with posterior.json (virheo report): its posterior mean, covariance and setups "
+                   "replace --material and --done")
     p.set_defaults(func=run)
 
 
@@ -35,14 +41,25 @@ def run(args) -> int:
     from similarity.space import Material, Setup
     from surrogate.theta import load
 
-    material = Material.parse(args.material).check_in_space()
-    done = [Setup.parse(text).check_in_space() for text in args.done]
+    covariance = None
+    if args.posterior is not None:
+        from similarity.posterior import read_posterior
+
+        post = read_posterior(args.posterior)
+        material = Material(**post["posterior"]["mean"]).check_in_space()
+        done = [Setup.parse(text).check_in_space() for text in (args.done or post["setups"])]
+        covariance = post["posterior"]["cov_normalised"]
+    elif args.material is None or not args.done:
+        raise ValueError("give --material and --done, or --posterior RUN")
+    else:
+        material = Material.parse(args.material).check_in_space()
+        done = [Setup.parse(text).check_in_space() for text in args.done]
     if args.plot is not None:
         parent = Path(args.plot).expanduser().resolve().parent
         if not parent.is_dir():
             raise FileNotFoundError(f"--plot: folder {parent} does not exist")
     theta = load(args.theta)
-    ranking = rank_setups(material, done, theta=theta)
+    ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
     best, score = ranking.best()
     if args.plot is not None:
         plot(ranking, best, args.plot)
@@ -51,13 +68,15 @@ def run(args) -> int:
             "material": material.to_dict(),
             "done": [s.to_dict() for s in done],
             "theta": theta.name,
+            "criterion": args.criterion,
             "next": best.to_dict(),
             "score": score,
             "valid_candidates": len(ranking),
             "plot": str(args.plot) if args.plot else None,
         }, indent=1))
     else:
-        print(f"next setup: {best} mm (width x height), S_p = {score:.6f}")
+        label = "S_p" if args.criterion == "perpendicularity" else "expected information gain [nats]"
+        print(f"next setup: {best} mm (width x height), {label} = {score:.6f}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; Theta map: {theta.name}")
         if args.plot:
@@ -75,7 +94,8 @@ def plot(ranking, best, path) -> None:
     grid = ranking.grid()
     fig, ax = plt.subplots(figsize=(5.6, 5.0), dpi=120)
     im = ax.imshow(grid, origin="lower", extent=(19.5, 70.5, 19.5, 70.5), cmap="viridis", interpolation="nearest")
-    fig.colorbar(im, ax=ax, label="perpendicularity score $S_p$ (lower is better)")
+    fig.colorbar(im, ax=ax, label="perpendicularity score $S_p$ (lower is better)" if ranking.criterion != "eig"
+                 else "expected information gain [nats] (higher is better)")
     for s in ranking.done:
         ax.plot(s.width_mm, s.height_mm, "X", color="w", mec="k", ms=11, ls="none", clip_on=False,
                 label="done" if s is ranking.done[0] else None)

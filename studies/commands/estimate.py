@@ -76,4 +76,5 @@ def run(args: argparse.Namespace) -> int:
     if est.next_setup is not None:
         print(f"next setup: {est.next_setup} mm (width x height)")
     print(f"report: {out / 'result.json'}")
+    print(f"uncertainty (posterior, credible intervals, next setup by information gain, HTML page): virheo report {out}")
     return 0

@@ -45,14 +45,11 @@ def _read_rheometer(path):
 def run(args: argparse.Namespace) -> int:
     from mpm import batch
     from mpm.store import Store
-    from similarity.posterior import analyse
+    from similarity.posterior import analyse, read_result
     from studies.html_report import write_report
 
     folder = Path(args.run)
-    if not (folder / "result.json").is_file():
-        if not folder.is_dir():
-            raise FileNotFoundError(f"run folder {folder} not found")
-        raise ValueError(f"{folder}: no result.json (not a folder written by virheo estimate or virheo demo)")
+    read_result(folder)  # a folder without an estimate stops here
     if args.new_simulations < 0 or args.min_ess <= 0 or args.max_steps < 1 or not 0 < args.half_width <= 0.5:
         raise ValueError("--new-simulations >= 0, --min-ess > 0, --max-steps >= 1 and 0 < --half-width <= 0.5 required")
     curve = _read_rheometer(args.rheometer) if args.rheometer else None  # bad files stop here, before any work
