@@ -37,7 +37,9 @@ def space_filling(center, half_width, n: int, seed: int = 0, lower=0.0, upper=1.
     hi = np.clip(center + half, lower, upper)
     if np.any(hi <= lo):
         raise ValueError("space_filling: the box around the centre is empty")
-    u = qmc.Sobol(d=center.size, scramble=True, seed=seed).random(int(n))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # Sobol' balance wants n = 2^k; any n is space-filling enough
+        u = qmc.Sobol(d=center.size, scramble=True, seed=seed).random(int(n))
     return qmc.scale(u, lo, hi)
 
 
