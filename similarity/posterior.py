@@ -9,7 +9,8 @@
   batch of new ones; its held-out RMSE enters the noise variance.
 * Sampler: ``emcee.EnsembleSampler`` (``vectorize=True``, seeded) with an ``HDFBackend`` so that a
   killed run resumes where it stopped; walkers start in a small ball around the CMA-ES optimum.
-  Convergence: chains longer than 50 integrated autocorrelation times tau with tau stable to 5 %;
+  Convergence: chains longer than 50 integrated autocorrelation times tau, with tau within 5 % of the
+  tau of the chain one chunk shorter;
   effective sample size ESS = walkers x (steps - burn-in) / max(tau), burn-in = 2 max(tau).
 """
 from __future__ import annotations
@@ -135,9 +136,11 @@ def sample(log_prob: Callable[[np.ndarray], np.ndarray], x0, *, nwalkers: int = 
     while True:
         it = sampler.iteration
         if it > 0:
-            new_tau = sampler.get_autocorr_time(tol=0)
-            stable = np.all(np.abs(new_tau - tau) < 0.05 * new_tau)
-            tau = new_tau
+            chain = sampler.get_chain()
+            tau = emcee.autocorr.integrated_time(chain, tol=0)
+            # stable: tau of the chain one chunk shorter agrees within 5 % (also right after a resume)
+            prev = emcee.autocorr.integrated_time(chain[: it - check_every], tol=0) if it > check_every else np.inf
+            stable = np.all(np.abs(tau - prev) < 0.05 * tau)
             t = float(np.max(tau))
             burn = int(2 * t)
             ess = nwalkers * (it - burn) / max(t, 1.0)

@@ -43,7 +43,7 @@ def intervals_png(path, summary) -> Path:
         span = max(hi - lo, 1e-6)
         xs = [lo, hi, summary["estimate"][name]] + ([summary["truth"][name]] if "truth" in summary else [])
         ax.set_xlim(min(xs) - 0.3 * span, max(xs) + 0.3 * span)
-    axes[0].legend(fontsize=6, loc="upper left", bbox_to_anchor=(0, 1.6), ncol=4, frameon=False)
+    axes[1].legend(fontsize=7, loc="lower center", bbox_to_anchor=(0.5, 1.02), ncol=4, frameon=False)
     return save_figure(fig, path)
 
 
