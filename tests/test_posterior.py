@@ -164,7 +164,7 @@ def test_killed_run_resumes_from_its_backend(tmp_path):
     import emcee
 
     done = emcee.backends.HDFBackend(str(path), read_only=True).iteration
-    assert 100 <= done < 300  # killed mid-run, finished steps kept
+    assert 50 <= done < 300  # killed mid-run (about step 100), finished steps kept
     resumed = sample(_log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=300, check_every=100,
                      backend=path)
     assert resumed.iterations == 300
