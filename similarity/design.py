@@ -7,6 +7,20 @@ S_p in candidate order wins ties (the authors' strict "<" scan). ``least_perpend
 the ablation of the paper's Fig. 10(d): the candidate with the *largest* S_p among those at least
 ``min_distance_mm`` away from every setup already done (the paper asks for "distant" setups without
 a number; 10 mm is our choice).
+
+``criterion="eig"`` ranks the same candidates by expected information gain instead (beyond the
+paper), in a linear-Gaussian (Laplace) approximation in the normalised material space:
+
+* the current posterior is Gaussian with covariance Sigma (from an emcee posterior, or, without one,
+  the Laplace posterior implied by the setups done: Sigma^-1 = 12 I + c sum_done H^_d, 12 I being the
+  precision of the uniform prior on [0, 1]^3);
+* a setup s adds the Fisher information F_s = c H^_s, where H^_s = A H A / tr(A H A) is the
+  plane-Poiseuille loss Hessian of s (eqs. 29-42, through Theta) in the normalised space scaled to
+  unit trace: its *shape* says which direction s pins down, and one scale c is shared by all setups;
+* c is fitted to the posterior: the least-squares c with Sigma^-1 ~= c sum_done H^_d (Frobenius
+  norm), i.e. a new setup is assumed to be as informative as the ones done were on average;
+  without a posterior c = ``information_scale``;
+* EIG(s) = 1/2 log det(I + Sigma F_s) nats, exact for a linear-Gaussian model.
 """
 from __future__ import annotations
 
@@ -16,8 +30,13 @@ import numpy as np
 
 from surrogate.theta import ThetaMap, load
 
+from poiseuille import hessian
+
 from .normals import loss_normal, loss_normals, perpendicularity
-from .space import SETUP_RANGE_MM, Material, Setup, candidate_setups
+from .space import EXTENT, SETUP_RANGE_MM, Material, Setup, candidate_setups
+
+CRITERIA = ("perpendicularity", "eig")
+DEFAULT_INFORMATION_SCALE = 1.0e4  # c without a posterior: a setup pins its normal to ~1 % of the box
 
 
 @dataclass(frozen=True, eq=False)
@@ -31,13 +50,16 @@ class Ranking:
     score: np.ndarray
     normals: np.ndarray
     done_normals: np.ndarray
+    criterion: str = "perpendicularity"  # "eig": score is the expected information gain in nats
+    information: np.ndarray | None = None  # "eig": Fisher information F_s (k, 3, 3) per candidate
+    covariance: np.ndarray | None = None  # "eig": the current posterior covariance Sigma
 
     def __len__(self) -> int:
         return len(self.score)
 
     def best(self) -> tuple[Setup, float]:
-        """(setup, S_p) of the most perpendicular candidate (first minimum)."""
-        i = int(np.argmin(self.score))
+        """(setup, score) of the best candidate: the first minimum of S_p, or the first maximum of the EIG."""
+        i = int(np.argmax(self.score)) if self.criterion == "eig" else int(np.argmin(self.score))
         return Setup(float(self.width_mm[i]), float(self.height_mm[i])), float(self.score[i])
 
     def grid(self) -> np.ndarray:
@@ -69,8 +91,75 @@ def _setups(done) -> tuple:
     return tuple(out)
 
 
-def rank_setups(material, done, theta="reference", variant: str = "scaled") -> Ranking:
-    """Score every valid candidate setup (vectorised over all 2601) against the setups ``done``."""
+def unit_hessians(material, width_mm, height_mm, theta) -> tuple[np.ndarray, np.ndarray]:
+    """H^ = A H A / tr(A H A) (k, 3, 3) of the plane-Poiseuille loss for setups, and their validity (P L > sigma_y)."""
+    m = _material(material).as_array()
+    P, L = theta.pl(m[0], m[1], m[2], np.asarray(width_mm, float), np.asarray(height_mm, float))
+    valid = P * L > m[2]
+    h = hessian(m[0], m[1], m[2], P, L) * EXTENT[:, None] * EXTENT[None, :]  # A H A, eqs. 29-42
+    tr = np.trace(h, axis1=-2, axis2=-1)
+    valid &= tr > 0
+    return h / np.where(valid, tr, 1.0)[..., None, None], valid
+
+
+def expected_information_gain(covariance, fisher) -> np.ndarray:
+    """EIG = 1/2 log det(I + Sigma F) in nats, for one Sigma (d, d) and Fisher matrices F (..., d, d)."""
+    cov = np.asarray(covariance, float)
+    f = np.asarray(fisher, float)
+    m = np.eye(cov.shape[0]) + cov @ f
+    sign, logdet = np.linalg.slogdet(m)
+    return 0.5 * np.where(sign > 0, logdet, np.nan)
+
+
+def information_scale(covariance, done_hessians) -> float:
+    """Least-squares c with Sigma^-1 ~= c sum_d H^_d (Frobenius); positive."""
+    g = np.sum(np.asarray(done_hessians, float), axis=0)
+    prec = np.linalg.inv(np.asarray(covariance, float))
+    c = float(np.sum(prec * g) / np.sum(g * g))
+    if not np.isfinite(c) or c <= 0:
+        raise ValueError("the posterior covariance is not explained by the setups done (no positive information scale)")
+    return c
+
+
+def _rank_eig(material, done, theta, covariance, scale) -> Ranking:
+    wd = np.array([s.width_mm for s in done])
+    hd = np.array([s.height_mm for s in done])
+    h_done, ok_done = unit_hessians(material, wd, hd, theta)
+    if not np.all(ok_done):
+        bad = done[int(np.flatnonzero(~ok_done)[0])]
+        raise ValueError(f"setup {bad} gives no plane-Poiseuille flow for this material, so its information is undefined")
+    if covariance is None:
+        c = float(scale) if scale is not None else DEFAULT_INFORMATION_SCALE
+        covariance = np.linalg.inv(12.0 * np.eye(3) + c * h_done.sum(axis=0))
+    else:
+        covariance = np.asarray(covariance, float)
+        if covariance.shape != (3, 3) or not np.all(np.isfinite(covariance)):
+            raise ValueError("covariance must be a finite 3 x 3 matrix (normalised material space)")
+        c = float(scale) if scale is not None else information_scale(covariance, h_done)
+    width, height = candidate_setups()
+    h, valid = unit_hessians(material, width, height, theta)
+    if not np.any(valid):
+        raise ValueError(f"no candidate setup makes {material} flow in Theta's plane-Poiseuille model")
+    fisher = c * h[valid]
+    eig = expected_information_gain(covariance, fisher)
+    q_done = np.array([loss_normal(material, s, theta) for s in done])
+    q, _ = loss_normals(material, width[valid], height[valid], theta)
+    return Ranking(material, done, width[valid], height[valid], eig, q, q_done, "eig", fisher, covariance)
+
+
+def rank_setups(material, done, theta="reference", variant: str = "scaled", criterion: str = "perpendicularity",
+                covariance=None, information_scale: float | None = None) -> Ranking:
+    """Score every valid candidate setup (vectorised over all 2601) against the setups ``done``.
+
+    ``criterion="perpendicularity"`` (default, section 6): S_p, lower is better.  ``criterion="eig"``:
+    expected information gain in nats, higher is better (module docstring), from the posterior
+    ``covariance`` in the normalised space when given.
+    """
+    if criterion not in CRITERIA:
+        raise ValueError(f"criterion='{criterion}' must be one of {', '.join(CRITERIA)}")
+    if criterion == "eig":
+        theta = theta if isinstance(theta, ThetaMap) else load(theta)
+        return _rank_eig(_material(material), _setups(done), theta, covariance, information_scale)
     material = _material(material)
     done = _setups(done)
     theta = theta if isinstance(theta, ThetaMap) else load(theta)
@@ -83,9 +172,10 @@ def rank_setups(material, done, theta="reference", variant: str = "scaled") -> R
     return Ranking(material, done, width[valid], height[valid], perpendicularity(q_done, q), q, q_done)
 
 
-def next_setup(material, done, theta="reference") -> Setup:
-    """The next setup: the valid candidate whose loss normal is most perpendicular to those of ``done``."""
-    return rank_setups(material, done, theta).best()[0]
+def next_setup(material, done, theta="reference", criterion: str = "perpendicularity", covariance=None) -> Setup:
+    """The next setup: the valid candidate whose loss normal is most perpendicular to those of ``done``
+    (or, with ``criterion="eig"``, the one of largest expected information gain)."""
+    return rank_setups(material, done, theta, criterion=criterion, covariance=covariance).best()[0]
 
 
 def least_perpendicular_setup(material, done, theta="reference", min_distance_mm: float = 10.0) -> Setup:

@@ -17,10 +17,10 @@ def register(subparsers) -> None:
         f"Units: material in SI (eta in Pa s^n, n dimensionless, sigma_y in Pa); setups WxH in millimetres "
         f"(width along the flow, then height). Example: {EXAMPLE}",
     )
-    p.add_argument("--material", required=True, metavar="ETA,N,SIGMA_Y",
+    p.add_argument("--material", default=None, metavar="ETA,N,SIGMA_Y",
                    help="current estimate in SI: eta [Pa s^n], n [-], sigma_y [Pa], e.g. 3.14,0.74,1.24 "
                    "(must lie in the material space: eta 1e-4..30, n 0.3..1, sigma_y 0..40)")
-    p.add_argument("--done", required=True, action="append", metavar="WxH",
+    p.add_argument("--done", default=None, action="append", metavar="WxH",
                    help="a setup already run, width x height in mm (20..70), e.g. 29x59; repeat for several")
     p.add_argument("--theta", default="reference", metavar="reference|PATH",
                    help="Theta map: 'reference' (the authors' published map, default) or a JSON file saved by ThetaMap.save")
@@ -28,6 +28,12 @@ def register(subparsers) -> None:
                    help="write a heat map of S_p over the (W, H) grid in mm with the done and chosen setups marked "
                    "(.png is added to a name without a suffix)")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of text")
+    p.add_argument("--criterion", default="perpendicularity", choices=("perpendicularity", "eig"),
+                   help="perpendicularity S_p (section 6, default) or eig: expected information gain in nats "
+                   "(linear-Gaussian approximation, docs/uncertainty.md)")
+    p.add_argument("--posterior", default=None, metavar="RUN",
+                   help="run folder with posterior.json (virheo report): its posterior mean, covariance and setups "
+                   "replace --material and --done")
     p.set_defaults(func=run)
 
 
@@ -36,8 +42,19 @@ def run(args) -> int:
     from similarity.space import Material, Setup
     from surrogate.theta import load
 
-    material = Material.parse(args.material).check_in_space()
-    done = [Setup.parse(text).check_in_space() for text in args.done]
+    covariance = None
+    if args.posterior is not None:
+        from similarity.posterior import read_posterior
+
+        post = read_posterior(args.posterior)
+        material = Material(**post["posterior"]["mean"]).check_in_space()
+        done = [Setup.parse(text).check_in_space() for text in (args.done or post["setups"])]
+        covariance = post["posterior"]["cov_normalised"]
+    elif args.material is None or not args.done:
+        raise ValueError("give --material and --done, or --posterior RUN")
+    else:
+        material = Material.parse(args.material).check_in_space()
+        done = [Setup.parse(text).check_in_space() for text in args.done]
     plot_path = None
     if args.plot is not None:
         from studies.report import figure_path
@@ -48,7 +65,7 @@ def run(args) -> int:
         if not plot_path.resolve().parent.is_dir():
             raise ValueError(f"--plot: folder {plot_path.resolve().parent} does not exist")
     theta = load(args.theta)
-    ranking = rank_setups(material, done, theta=theta)
+    ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
     best, score = ranking.best()
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
@@ -57,13 +74,15 @@ def run(args) -> int:
             "material": material.to_dict(),
             "done": [s.to_dict() for s in done],
             "theta": theta.name,
+            "criterion": args.criterion,
             "next": best.to_dict(),
             "score": score,
             "valid_candidates": len(ranking),
             "plot": str(plot_path) if plot_path else None,
         }, indent=1))
     else:
-        print(f"next setup: {best} mm (width x height), S_p = {score:.6f}")
+        label = "S_p" if args.criterion == "perpendicularity" else "expected information gain [nats]"
+        print(f"next setup: {best} mm (width x height), {label} = {score:.6f}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; Theta map: {theta.name}")
         if plot_path:
@@ -84,7 +103,8 @@ def plot(ranking, best, path) -> Path:
     grid = ranking.grid()
     fig, ax = plt.subplots(figsize=(5.6, 5.0), dpi=120)
     im = ax.imshow(grid, origin="lower", extent=(19.5, 70.5, 19.5, 70.5), cmap="viridis", interpolation="nearest")
-    fig.colorbar(im, ax=ax, label="perpendicularity score $S_p$ (lower is better)")
+    fig.colorbar(im, ax=ax, label="perpendicularity score $S_p$ (lower is better)" if ranking.criterion != "eig"
+                 else "expected information gain [nats] (higher is better)")
     for s in ranking.done:
         ax.plot(s.width_mm, s.height_mm, "X", color="w", mec="k", ms=11, ls="none", clip_on=False,
                 label="done" if s is ranking.done[0] else None)

@@ -63,4 +63,5 @@ def run(args: argparse.Namespace) -> int:
     if est.next_setup is not None:
         print(f"next setup: {est.next_setup} mm (width x height)")
     print(f"report: {run.out / 'result.json'}")
+    print(f"uncertainty (posterior, credible intervals, next setup by information gain, HTML page): virheo report {run.out}")
     return 0

@@ -1,0 +1,479 @@
+"""Posterior over (eta, n, sigma_y) given dam-break footage: emcee on an emulated likelihood.
+
+* Prior: uniform on the paper's material space, i.e. on [0, 1]^3 in normalised coordinates
+  (:mod:`similarity.space`), restricted to the emulator's trust region (the box its training
+  simulations span); outside it the emulator extrapolates and the posterior is cut (reported).
+* Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
+  emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
+  simulations already in the store near the estimate (the CMA-ES archive) plus a scrambled-Sobol
+  batch of new ones; its held-out RMSE enters the noise variance.
+* Sampler: ``emcee.EnsembleSampler`` (``vectorize=True``, seeded) with an ``HDFBackend`` so that a
+  killed run resumes where it stopped; walkers start in a small ball around the CMA-ES optimum.
+  Convergence: chains longer than 50 integrated autocorrelation times tau, with tau within 5 % of the
+  tau of the chain one chunk shorter;
+  effective sample size ESS = walkers x (steps - burn-in) / max(tau), burn-in = 2 max(tau).
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from similarity.space import Material, denormalize, normalize
+
+QUANTILES = (0.05, 0.5, 0.95)
+FLOW_RATES = np.logspace(-2, 4, 121)  # 1/s, the range of the flow-curve plots
+
+
+# -- sampling ---------------------------------------------------------------------------------------
+@dataclass
+class Posterior:
+    """Samples (normalised coordinates, burn-in removed, all walkers) and their diagnostics."""
+
+    samples: np.ndarray
+    tau: np.ndarray
+    iterations: int
+    nwalkers: int
+    burn: int
+    converged: bool
+    wall_seconds: float
+    acceptance: float = float("nan")
+
+    @property
+    def ess(self) -> float:
+        """Effective sample size: walkers x (steps - burn-in) / max(tau)."""
+        return float(self.nwalkers * (self.iterations - self.burn) / max(float(np.max(self.tau)), 1.0))
+
+    @property
+    def mean(self) -> np.ndarray:
+        return self.samples.mean(axis=0)
+
+    @property
+    def cov(self) -> np.ndarray:
+        return np.cov(self.samples, rowvar=False)
+
+    def si(self) -> np.ndarray:
+        """Samples in SI (eta, n, sigma_y)."""
+        return denormalize(self.samples)
+
+    def summary(self) -> dict:
+        si = self.si()
+        q = np.quantile(si, QUANTILES, axis=0)
+        names = ("eta", "n", "sigma_y")
+        return {
+            "mean": dict(zip(names, si.mean(axis=0).tolist())),
+            "quantiles": {f"{int(100 * p)}": dict(zip(names, row.tolist())) for p, row in zip(QUANTILES, q)},
+            "mean_normalised": self.mean.tolist(), "cov_normalised": self.cov.tolist(),
+            "ess": self.ess, "tau": np.asarray(self.tau).tolist(), "iterations": self.iterations,
+            "nwalkers": self.nwalkers, "burn": self.burn, "converged": self.converged,
+            "acceptance": self.acceptance, "wall_seconds": self.wall_seconds,
+        }
+
+
+def _open_backend(path, name: str):
+    import emcee
+
+    path = Path(path)
+    if path.exists():
+        import h5py
+
+        try:
+            with h5py.File(path, "r"):
+                pass
+        except OSError as exc:
+            raise ValueError(f"{path}: corrupt posterior backend ({str(exc).splitlines()[0]}); "
+                             "delete it to sample again") from None
+    return emcee.backends.HDFBackend(str(path), name=name)
+
+
+def sample(log_prob: Callable[[np.ndarray], np.ndarray], x0, *, nwalkers: int = 32, seed: int = 0,
+           min_ess: float = 1000.0, max_steps: int = 20000, check_every: int = 250, ball: float = 1e-3,
+           backend=None, backend_name: str = "mcmc", min_steps: int = 0,
+           progress: Callable[[dict], None] | None = None) -> Posterior:
+    """Sample ``log_prob`` (vectorised: (k, d) -> (k,), -inf outside the support) with emcee.
+
+    Walkers start at ``x0`` plus N(0, ball^2) (redrawn until their log_prob is finite).  Runs in chunks
+    of ``check_every`` steps until converged (module docstring) with ESS >= ``min_ess``, or
+    ``max_steps``.  ``backend``: an HDF5 path; re-running with the same path and name resumes.
+    """
+    import emcee
+
+    x0 = np.asarray(x0, float)
+    ndim = x0.size
+    t0 = time.perf_counter()
+    hdf = _open_backend(backend, backend_name) if backend is not None else None
+    resume = False
+    if hdf is not None:
+        try:
+            resume = hdf.initialized and hdf.iteration > 0
+            if resume and hdf.shape != (nwalkers, ndim):
+                raise ValueError(f"{backend}: backend holds {hdf.shape[0]} walkers in {hdf.shape[1]} dimensions, "
+                                 f"not {nwalkers} in {ndim}; delete it to sample again")
+        except (OSError, KeyError) as exc:
+            raise ValueError(f"{backend}: corrupt posterior backend ({exc}); delete it to sample again") from None
+    sampler = emcee.EnsembleSampler(nwalkers, ndim, log_prob, vectorize=True, backend=hdf)
+    if resume:
+        state = None
+    else:
+        if hdf is not None:
+            hdf.reset(nwalkers, ndim)
+        rng = np.random.default_rng(seed)
+        state = x0 + ball * rng.standard_normal((nwalkers, ndim))
+        for _ in range(200):
+            bad = ~np.isfinite(log_prob(state))
+            if not bad.any():
+                break
+            state[bad] = x0 + ball * rng.standard_normal((int(bad.sum()), ndim))
+        else:
+            raise ValueError("could not place the walkers: the log-posterior is -inf around the start")
+        sampler.random_state = np.random.RandomState(seed).get_state()
+    tau = np.full(ndim, np.inf)
+    converged = False
+    while True:
+        it = sampler.iteration
+        if it > 0:
+            chain = sampler.get_chain()
+            tau = emcee.autocorr.integrated_time(chain, tol=0)
+            # stable: tau of the chain one chunk shorter agrees within 5 % (also right after a resume)
+            prev = emcee.autocorr.integrated_time(chain[: it - check_every], tol=0) if it > check_every else np.inf
+            stable = np.all(np.abs(tau - prev) < 0.05 * tau)
+            t = float(np.max(tau))
+            burn = int(2 * t)
+            ess = nwalkers * (it - burn) / max(t, 1.0)
+            converged = bool(it > 50 * t and stable and np.all(np.isfinite(tau)))
+            if progress:
+                progress({"event": "mcmc", "iteration": it, "tau": t, "ess": ess})
+            if (converged and ess >= min_ess and it >= min_steps) or it >= max_steps:
+                break
+        steps = min(check_every, max_steps - it)
+        sampler.run_mcmc(state, steps, progress=False)
+        state = None
+    t = float(np.max(tau))
+    burn = min(int(2 * t), sampler.iteration - 1)
+    chain = sampler.get_chain(discard=burn, flat=True)
+    return Posterior(chain, tau, int(sampler.iteration), nwalkers, burn, converged, time.perf_counter() - t0,
+                     float(np.mean(sampler.acceptance_fraction)))
+
+
+def gaussian_moments_check(mean, cov, **kwargs) -> Posterior:
+    """Sample a Gaussian truncated to [0, 1]^d (for tests/benchmarks of :func:`sample`)."""
+    mean, prec = np.asarray(mean, float), np.linalg.inv(np.asarray(cov, float))
+
+    def log_prob(x):
+        d = x - mean
+        inside = np.all((x >= 0) & (x <= 1), axis=1)
+        return np.where(inside, -0.5 * np.einsum("ij,jk,ik->i", d, prec, d), -np.inf)
+
+    return sample(log_prob, mean, **kwargs)
+
+
+def write_json(path, data) -> Path:
+    """Strict JSON (non-finite floats as null), written atomically."""
+    import math
+    import os
+    import tempfile
+
+    from mpm.store import json_default
+
+    def clean(o):
+        if isinstance(o, float) and not math.isfinite(o):
+            return None
+        if isinstance(o, dict):
+            return {k: clean(v) for k, v in o.items()}
+        if isinstance(o, (list, tuple)):
+            return [clean(v) for v in o]
+        return o
+
+    path = Path(path)
+    text = json.dumps(clean(json.loads(json.dumps(data, default=json_default))), indent=1, allow_nan=False)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    with os.fdopen(fd, "w") as fh:
+        fh.write(text + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+# -- a run folder -----------------------------------------------------------------------------------
+@dataclass
+class Run:
+    """A finished ``virheo estimate`` / ``virheo demo`` folder, its experiments and store."""
+
+    folder: Path
+    result: dict
+    estimate: Material
+    experiments: list
+    preset: object
+    simulator: str
+    store: object
+    truth: Material | None = None
+    setups: list = field(default_factory=list)
+
+
+def read_result(folder) -> tuple[dict, Material]:
+    """``folder/result.json`` and its estimate; FileNotFoundError / one-line ValueError otherwise."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"run folder {folder} not found")
+    path = folder / "result.json"
+    if not path.is_file():
+        raise ValueError(f"{folder}: no result.json (not a folder written by virheo estimate or virheo demo)")
+    try:
+        result = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    est = result.get("estimate") if isinstance(result, dict) else None
+    if not isinstance(est, dict) or set(est) != {"eta", "n", "sigma_y"}:
+        raise ValueError(f"{path} holds no estimate (eta, n, sigma_y)")
+    try:
+        return result, Material(float(est["eta"]), float(est["n"]), float(est["sigma_y"]))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: bad estimate ({exc})") from None
+
+
+def read_posterior(folder) -> dict:
+    """``folder/posterior.json`` written by :func:`analyse` (``virheo report``)."""
+    path = Path(folder) / "posterior.json"
+    if not path.is_file():
+        raise ValueError(f"{folder}: no posterior.json; run `virheo report {folder}` first")
+    try:
+        s = json.loads(path.read_text())
+        cov = np.asarray(s["posterior"]["cov_normalised"], float)
+        Material(**s["posterior"]["mean"])
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a posterior summary ({exc})") from None
+    if cov.shape != (3, 3):
+        raise ValueError(f"{path}: covariance is not 3 x 3")
+    return s
+
+
+def load_run(folder, *, store=None, executor=None) -> Run:
+    """Read ``folder/result.json`` and rebuild its experiments (folders, or emulated footage from the store)."""
+    from mpm import batch
+    from mpm.store import Store
+    from similarity.estimate import emulate, get_preset
+    from similarity.space import Setup
+
+    folder = Path(folder)
+    result, estimate = read_result(folder)
+    path = folder / "result.json"
+    preset = get_preset(result.get("preset", "quick"))
+    simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
+    store = store if store is not None else Store(folder / "store")
+    setups = [Setup.parse(s) for s in result.get("setups", [])]
+    truth = None
+    if result.get("folders"):
+        from mpm.experiment import load
+
+        experiments = [load(d) for d in result["folders"]]
+    elif result.get("truth"):
+        t = result["truth"]
+        truth = Material(float(t["eta"]), float(t["n"]), float(t["sigma_y"]))
+        info = result.get("experiments") or []
+        experiments = []
+        for i, s in enumerate(setups):
+            density = float(info[i]["density"]) if i < len(info) else 1000.0
+            experiments += emulate(truth, [s], density=density, preset=preset, store=store, executor=executor,
+                                   simulator=simulator)
+    else:
+        raise ValueError(f"{path}: names neither experiment folders nor a ground truth; cannot rebuild the footage")
+    if not experiments:
+        raise ValueError(f"{path}: no setups")
+    return Run(folder, result, estimate, experiments, preset, simulator, store, truth,
+               setups or [Setup(e.width_mm, e.height_mm) for e in experiments])
+
+
+def _jobs(run: Run, X):
+    from mpm import batch
+    from similarity.estimate import simulation_request
+
+    ids = [batch.experiment_id(e.frames, e.name) for e in run.experiments]
+    jobs = []
+    for x in X:
+        m = Material.from_array(denormalize(np.clip(x, 0, 1)))
+        jobs += [(simulation_request(m, e, run.preset, run.simulator), i, e.frames)
+                 for e, i in zip(run.experiments, ids)]
+    return jobs
+
+
+def mean_losses(run: Run, X, executor=None) -> np.ndarray:
+    """Mean video loss over the run's setups for normalised candidates X (simulated where not in the store)."""
+    from mpm import batch
+
+    X = np.atleast_2d(X)
+    if len(X) == 0:
+        return np.zeros(0)
+    losses = batch.evaluate_losses(_jobs(run, X), store=run.store, executor=executor)
+    return losses.reshape(len(X), len(run.experiments)).mean(axis=1)
+
+
+def archive(run: Run, center, half_width: float) -> np.ndarray:
+    """Normalised materials simulated in the store in every setup of the run with its forward settings,
+    inside the box ``center +- half_width``: the CMA-ES archive near the estimate."""
+    from similarity.estimate import simulation_request
+
+    templates = {}
+    for e in run.experiments:
+        d = simulation_request(run.estimate, e, run.preset, run.simulator).to_dict()
+        for k in ("eta", "n", "sigma_y"):
+            d.pop(k)
+        templates[json.dumps(d, sort_keys=True, default=str)] = e
+    counts: dict[tuple, int] = {}
+    for r in run.store.requests():
+        d = r.to_dict()
+        mat = (d.pop("eta"), d.pop("n"), d.pop("sigma_y"))
+        if json.dumps(d, sort_keys=True, default=str) in templates:
+            counts[mat] = counts.get(mat, 0) + 1
+    mats = np.array([m for m, c in counts.items() if c >= len(run.experiments)], float).reshape(-1, 3)
+    if len(mats) == 0:
+        return mats
+    X = normalize(mats)
+    near = np.all(np.abs(X - np.asarray(center)) <= half_width + 1e-12, axis=1)
+    return X[near]
+
+
+def discretisation_error(run: Run, executor=None) -> float:
+    """delta_disc: loss between the estimate simulated at the preset's cell width and at half of it."""
+    from dataclasses import replace
+
+    from mpm import batch
+    from mpm.loss import video_loss
+    from similarity.estimate import simulated_frames
+
+    cell = run.preset.cell_mm
+    if cell is None:
+        from mpm.solver import DEFAULT_CELL_MM
+
+        cell = DEFAULT_CELL_MM
+    fine = replace(run.preset, name=run.preset.name + "-fine", cell_mm=float(cell) / 2.0)
+    coarse = simulated_frames(run.estimate, run.experiments, preset=run.preset, store=run.store,
+                              executor=executor, simulator=run.simulator)
+    refined = simulated_frames(run.estimate, run.experiments, preset=fine, store=run.store,
+                               executor=executor if executor is not None else batch.InlineExecutor(),
+                               simulator=run.simulator)
+    vals = [video_loss(a, b) for a, b in zip(coarse, refined) if a is not None and b is not None]
+    return float(np.mean(vals)) if vals else 0.0
+
+
+@dataclass
+class Analysis:
+    """Everything :func:`analyse` computes for a run (``summary`` is what posterior.json holds)."""
+
+    run: Run
+    posterior: Posterior
+    noise: object
+    emulator: object
+    summary: dict
+    frames: list
+
+
+def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, half_width: float = 0.1,
+            seed: int = 0, nwalkers: int = 32, min_ess: float = 1000.0, max_steps: int = 20000,
+            discretisation: bool = True, progress: Callable[[dict], None] | None = None) -> Analysis:
+    """Noise scale, emulator, posterior, ellipsoids and ranked next setups of a run; writes
+    ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder."""
+    from mpm.store import digest
+    from similarity.design import expected_information_gain, rank_setups
+    from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
+    from similarity.estimate import simulated_frames
+    from similarity.likelihood import noise_scale
+    from similarity.normals import loss_normal
+    from surrogate.emulator import LossEmulator, space_filling
+
+    def say(text):
+        if progress:
+            progress({"event": "message", "text": text})
+
+    run = load_run(folder, store=store, executor=executor)
+    x_hat = normalize(run.estimate.as_array())
+    frames = simulated_frames(run.estimate, run.experiments, preset=run.preset, store=run.store, executor=executor,
+                              simulator=run.simulator)
+    if any(f is None for f in frames):
+        raise ValueError(f"{run.folder}: the estimate's simulation failed; no posterior")
+    delta = discretisation_error(run, executor) if discretisation else 0.0
+    say(f"discretisation error (loss, cell vs half cell): {delta:.5f}")
+    noise = noise_scale(frames, [e.frames for e in run.experiments], discretisation=delta)
+    # emulator training set: the archive near the estimate + a space-filling batch of new simulations
+    X_old = archive(run, x_hat, half_width)
+    X_new = space_filling(x_hat, half_width, new_simulations, seed=seed) if new_simulations else np.zeros((0, 3))
+    say(f"emulator: {len(X_old)} simulated candidates from the store, {len(X_new)} new")
+    y_old = mean_losses(run, X_old, executor)
+    y_new = mean_losses(run, X_new, executor)
+    X = np.vstack([X_old, X_new, x_hat[None]])
+    y = np.concatenate([y_old, y_new, mean_losses(run, x_hat[None], executor)])
+    ok = np.isfinite(y)
+    X, y = X[ok], y[ok]
+    rng = np.random.default_rng(seed)
+    test = np.zeros(len(y), bool)
+    test[rng.choice(len(y), size=max(1, len(y) // 5), replace=False)] = True
+    emu = LossEmulator(seed=seed)
+    validation = emu.validate(X[~test], y[~test], X[test], y[test])
+    noise = noise.with_emulator(validation.rmse)
+    say(f"emulator held-out RMSE {validation.rmse:.2e} (loss range {validation.loss_range:.2e}); "
+        f"noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}")
+    lo, hi = np.maximum(emu.lower, 0.0), np.minimum(emu.upper, 1.0)
+
+    def log_prob(x):
+        x = np.atleast_2d(x)
+        inside = np.all((x >= lo) & (x <= hi), axis=1)
+        out = np.full(len(x), -np.inf)
+        if inside.any():
+            out[inside] = noise.log_likelihood(emu.predict(x[inside]))
+        return out
+
+    key = digest({"X": X.round(12).tolist(), "y": y.tolist(), "noise": noise.to_dict(), "seed": seed,
+                  "nwalkers": nwalkers})[:16]
+    post = sample(log_prob, x_hat, nwalkers=nwalkers, seed=seed, min_ess=min_ess, max_steps=max_steps,
+                  backend=run.folder / "posterior.h5", backend_name=f"mcmc-{key}", progress=progress)
+    summary = {"estimate": run.estimate.to_dict(), "estimate_normalised": x_hat.tolist(),
+               "setups": [str(s) for s in run.setups], "noise": noise.to_dict(),
+               "emulator": validation.to_dict() | {"trust_region": [lo.tolist(), hi.tolist()],
+                                                   "roughness_std": emu.noise_std},
+               "posterior": post.summary()}
+    if run.truth is not None:
+        summary["truth"] = run.truth.to_dict()
+        summary["truth_normalised"] = normalize(run.truth.as_array()).tolist()
+    # ellipsoids: posterior covariance and the Laplace approximation (finite-difference Hessian)
+    ell = ellipsoid(post.mean, post.cov, 0.9)
+    summary["ellipsoid_posterior"] = ell.to_dict()
+    try:
+        step = max(1e-5, 0.5 * float(np.sqrt(np.min(np.diag(post.cov)))))
+        h = finite_difference_hessian(lambda x: -noise.log_likelihood(emu.predict(x)), post.mean, step=step)
+        summary["ellipsoid_laplace"] = ellipsoid(post.mean, np.linalg.inv(h), 0.9).to_dict()
+    except (ValueError, np.linalg.LinAlgError):
+        summary["ellipsoid_laplace"] = None
+    m_mean = Material.from_array(denormalize(np.clip(post.mean, 0, 1)))
+    normals = {}
+    for s in run.setups:
+        try:
+            q = loss_normal(m_mean, s)
+            normals[str(s)] = {"normal": q.tolist(), "alignment_thin_axis": alignment(ell.thin, q)}
+        except ValueError:
+            normals[str(s)] = None
+    summary["normals"] = normals
+    # flow-curve band
+    stress = np.array([Material.from_array(m).stress(FLOW_RATES) for m in post.si()[:: max(1, len(post.samples) // 2000)]])
+    summary["flow_band"] = {"shear_rate": FLOW_RATES.tolist(),
+                            **{f"{int(100 * p)}": np.quantile(stress, p, axis=0).tolist() for p in QUANTILES}}
+    # next setups by expected information gain (and by perpendicularity, for comparison)
+    try:
+        eig = rank_setups(m_mean, run.setups, criterion="eig", covariance=post.cov)
+        order = np.argsort(-eig.score)[:10]
+        summary["eig_grid"] = eig.grid().tolist()
+        summary["next_setups_eig"] = [{"setup": f"{eig.width_mm[i]:g}x{eig.height_mm[i]:g}",
+                                       "eig_nats": float(eig.score[i])} for i in order]
+        perp = rank_setups(m_mean, run.setups)
+        best, sp = perp.best()
+        summary["next_setup_perpendicular"] = {"setup": str(best), "score": sp,
+                                               "eig_nats": float(expected_information_gain(
+                                                   post.cov, eig.information[int(np.argmin(perp.score))]))
+                                               if len(perp) == len(eig) else None}
+    except ValueError as exc:
+        summary["next_setups_eig"] = []
+        summary["next_setup_perpendicular"] = {"error": str(exc)}
+    np.save(run.folder / "posterior_samples.npy", post.samples)
+    write_json(run.folder / "posterior.json", summary)
+    return Analysis(run, post, noise, emu, summary, frames)

@@ -1,0 +1,75 @@
+"""``virheo report RUN``: posterior, similarity ellipsoids, next setups and an HTML page for a finished run."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "report", help="uncertainty report of an estimate: posterior, flow-curve band, ellipsoids, next setups (HTML)",
+        description="For a folder written by `virheo estimate` or `virheo demo`: estimates the noise of the footage, "
+        "trains an emulator of the loss near the estimate (the store's simulations plus a space-filling batch of new "
+        "ones), samples the posterior over (eta [Pa s^n], n, sigma_y [Pa]) with emcee and writes RUN/posterior.json "
+        "and an HTML page with figures (RUN/report/index.html). Re-running resumes (store and emcee backend).",
+    )
+    p.add_argument("run", metavar="RUN", help="run folder holding result.json (and its store)")
+    p.add_argument("--rheometer", default=None, metavar="CSV", help="rheometer flow-curve export to draw over the band")
+    p.add_argument("--out", default=None, metavar="DIR", help="report folder (default RUN/report)")
+    p.add_argument("--store", default=None, metavar="PATH", help="simulation store (default RUN/store)")
+    p.add_argument("--new-simulations", type=int, default=24, metavar="N",
+                   help="space-filling candidates simulated for the emulator, each in every setup (default 24)")
+    p.add_argument("--half-width", type=float, default=0.1, metavar="W",
+                   help="half-width of the emulator's box around the estimate, normalised space (default 0.1)")
+    p.add_argument("--min-ess", type=float, default=1000.0, metavar="N", help="effective samples to reach (default 1000)")
+    p.add_argument("--max-steps", type=int, default=20000, metavar="N", help="most emcee steps (default 20000)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the space-filling batch and of emcee (default 0)")
+    p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
+    p.add_argument("--no-discretisation", action="store_true",
+                   help="skip the half-cell simulation of the estimate that measures the discretisation error")
+    p.add_argument("--quiet", action="store_true", help="no progress messages")
+    p.set_defaults(func=run)
+
+
+def _read_rheometer(path):
+    from surrogate.rheometer import read_flow_curve
+
+    try:
+        return read_flow_curve(path)
+    except (UnicodeDecodeError, OSError) as exc:
+        raise ValueError(f"{path}: unreadable rheometer file ({exc})") from None
+
+
+def run(args: argparse.Namespace) -> int:
+    from mpm import batch
+    from mpm.store import Store
+    from similarity.posterior import analyse, read_result
+    from studies.html_report import write_report
+
+    folder = Path(args.run)
+    read_result(folder)  # a folder without an estimate stops here
+    if args.new_simulations < 0 or args.min_ess <= 0 or args.max_steps < 1 or not 0 < args.half_width <= 0.5:
+        raise ValueError("--new-simulations >= 0, --min-ess > 0, --max-steps >= 1 and 0 < --half-width <= 0.5 required")
+    curve = _read_rheometer(args.rheometer) if args.rheometer else None  # bad files stop here, before any work
+    progress = None if args.quiet else (lambda ev: print(ev["text"]) if ev.get("event") == "message" else None)
+    store = Store(args.store) if args.store else None
+    executor = batch.local_executor(args.workers)
+    try:
+        analysis = analyse(folder, store=store, executor=executor, new_simulations=args.new_simulations,
+                           half_width=args.half_width, seed=args.seed, min_ess=args.min_ess, max_steps=args.max_steps,
+                           discretisation=not args.no_discretisation, progress=progress)
+    finally:
+        batch.shutdown(executor)
+    page = write_report(Path(args.out) if args.out else folder / "report", analysis, rheometer=curve)
+    post = analysis.summary["posterior"]
+    q5, q95 = post["quantiles"]["5"], post["quantiles"]["95"]
+    print("posterior 90 % intervals: " + ", ".join(
+        f"{k} {q5[k]:.4g}..{q95[k]:.4g}" for k in ("eta", "n", "sigma_y")) + " (Pa s^n, -, Pa)")
+    print(f"effective samples {post['ess']:.0f}, {'converged' if post['converged'] else 'NOT converged'}")
+    nxt = analysis.summary.get("next_setups_eig") or []
+    if nxt:
+        print(f"next setup by expected information gain: {nxt[0]['setup']} mm ({nxt[0]['eig_nats']:.3f} nats)")
+    if "rheometer_band_coverage" in analysis.summary:
+        print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * analysis.summary['rheometer_band_coverage']:.0f} %")
+    print(f"report: {page}")
+    return 0

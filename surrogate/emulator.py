@@ -1,0 +1,128 @@
+"""Emulator of the video loss near an estimate: quadratic trend + Gaussian process (scikit-learn).
+
+The dam-break loss (eq. 3) near its minimum is, to first order, a quadratic bowl whose long axis is
+the similarity valley (section 5); on top of that the MPM's discretisation makes it slightly rough.
+The emulator therefore models
+
+    L(x) = q(x) + g(x),   q: least-squares quadratic in the normalised coordinates x in [0, 1]^3,
+                          g: GP with an anisotropic RBF kernel plus a white-noise term,
+
+so it extrapolates like a bowl (not back to a constant mean, as a bare GP would) and its white-noise
+level estimates the loss's roughness.  Inputs are normalised material coordinates (see
+:mod:`similarity.space`); this module knows nothing about materials or simulations.
+
+:func:`space_filling` draws a scrambled Sobol batch in a box around a centre (``scipy.stats.qmc``)
+for the new simulations the emulator is trained on.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import qmc
+from sklearn.exceptions import ConvergenceWarning
+from sklearn.gaussian_process import GaussianProcessRegressor
+from sklearn.gaussian_process.kernels import RBF, ConstantKernel, WhiteKernel
+from sklearn.linear_model import Ridge
+from sklearn.pipeline import make_pipeline
+from sklearn.preprocessing import PolynomialFeatures
+
+
+def space_filling(center, half_width, n: int, seed: int = 0, lower=0.0, upper=1.0) -> np.ndarray:
+    """``n`` scrambled-Sobol points in the box ``center +- half_width`` clipped to [lower, upper]^d."""
+    center = np.asarray(center, float)
+    half = np.broadcast_to(np.asarray(half_width, float), center.shape)
+    lo = np.clip(center - half, lower, upper)
+    hi = np.clip(center + half, lower, upper)
+    if np.any(hi <= lo):
+        raise ValueError("space_filling: the box around the centre is empty")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # Sobol' balance wants n = 2^k; any n is space-filling enough
+        u = qmc.Sobol(d=center.size, scramble=True, seed=seed).random(int(n))
+    return qmc.scale(u, lo, hi)
+
+
+@dataclass(frozen=True)
+class Validation:
+    """Held-out error of an emulator: RMSE and the largest absolute error, in loss units."""
+
+    n_train: int
+    n_test: int
+    rmse: float
+    max_abs: float
+    loss_range: float  # max - min of the held-out losses, for scale
+
+    def to_dict(self) -> dict:
+        return {"n_train": self.n_train, "n_test": self.n_test, "rmse": self.rmse, "max_abs": self.max_abs,
+                "loss_range": self.loss_range}
+
+
+class LossEmulator:
+    """Quadratic trend + GP regression of a scalar loss over normalised inputs (n, d)."""
+
+    def __init__(self, seed: int = 0, ridge: float = 1e-8):
+        self.seed = int(seed)
+        self.ridge = float(ridge)
+        self.trend = None
+        self.gp = None
+        self.lower = self.upper = None
+        self.validation: Validation | None = None
+
+    def fit(self, X, y) -> "LossEmulator":
+        X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
+        ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
+        X, y = X[ok], y[ok]
+        d = X.shape[1]
+        if len(y) < (d + 1) * (d + 2) // 2 + 1:
+            raise ValueError(f"the emulator needs at least {(d + 1) * (d + 2) // 2 + 1} finite losses, got {len(y)}")
+        self.trend = make_pipeline(PolynomialFeatures(2), Ridge(alpha=self.ridge)).fit(X, y)
+        resid = y - self.trend.predict(X)
+        scale = float(np.var(resid)) or 1e-12
+        span = np.maximum(X.max(axis=0) - X.min(axis=0), 1e-3)
+        kernel = (ConstantKernel(scale, (1e-6 * scale, 1e3 * scale))
+                  * RBF(length_scale=0.3 * span, length_scale_bounds=(1e-3, 10.0))
+                  + WhiteKernel(0.1 * scale, (1e-8 * scale + 1e-18, 10 * scale)))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)  # a length scale at its bound is a fine answer
+            self.gp = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=2,
+                                               random_state=self.seed).fit(X, resid)
+        self.lower, self.upper = X.min(axis=0), X.max(axis=0)
+        self._poly, ridge = self.trend[0], self.trend[1]
+        self._coef, self._intercept = ridge.coef_, ridge.intercept_
+        self._X = self.gp.X_train_
+        return self
+
+    @property
+    def noise_std(self) -> float:
+        """Standard deviation of the fitted white-noise term: the loss's roughness below the GP's scale."""
+        k = self.gp.kernel_
+        return float(np.sqrt(k.k2.noise_level))
+
+    def predict(self, X, return_std: bool = False):
+        """Loss at X (n, d); with ``return_std`` also the GP's predictive std (without the white noise)."""
+        X = np.atleast_2d(np.asarray(X, float))
+        if not return_std:  # the posterior mean written out: no input validation, ~10x faster for MCMC
+            feats = self._poly.transform(X)
+            return feats @ self._coef + self._intercept + self.gp.kernel_.k1(X, self._X) @ self.gp.alpha_
+        mean_trend = self.trend.predict(X)
+        g, sd = self.gp.predict(X, return_std=True)
+        sd2 = np.maximum(sd**2 - self.noise_std**2, 0.0)
+        return mean_trend + g, np.sqrt(sd2)
+
+    def validate(self, X_train, y_train, X_test, y_test) -> Validation:
+        """Fit on the training part, measure on the held-out part, then refit on everything."""
+        X_test, y_test = np.atleast_2d(np.asarray(X_test, float)), np.asarray(y_test, float)
+        ok = np.isfinite(y_test)
+        self.fit(X_train, y_train)
+        err = self.predict(X_test[ok]) - y_test[ok]
+        v = Validation(int(np.isfinite(y_train).sum()), int(ok.sum()), float(np.sqrt(np.mean(err**2))),
+                       float(np.max(np.abs(err))), float(np.ptp(y_test[ok])))
+        self.fit(np.vstack([X_train, X_test]), np.concatenate([y_train, y_test]))
+        self.validation = v
+        return v
+
+    def within(self, X) -> np.ndarray:
+        """True where X lies inside the bounding box of the training inputs (the emulator's trust region)."""
+        X = np.atleast_2d(np.asarray(X, float))
+        return np.all((X >= self.lower) & (X <= self.upper), axis=1)

@@ -1,0 +1,189 @@
+"""Posterior sampling, noise model, emulator and expected information gain against closed forms."""
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from similarity.design import expected_information_gain, rank_setups
+from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
+from similarity.likelihood import correlation_area, noise_scale
+from similarity.posterior import gaussian_moments_check, sample
+from similarity.space import Setup
+from surrogate.emulator import LossEmulator, space_filling
+
+ROOT = Path(__file__).resolve().parent.parent
+MEAN = np.array([0.5, 0.4, 0.6])
+COV = np.array([[4e-4, 3e-4, 0.0], [3e-4, 9e-4, -2e-4], [0.0, -2e-4, 2.5e-3]])
+
+
+def test_linear_gaussian_posterior_moments_match_closed_form():
+    # a linear-Gaussian problem: prior N(m0, P0), data y = G x + e, e ~ N(0, R); posterior in closed form
+    rng = np.random.default_rng(3)
+    G = rng.normal(size=(5, 3))
+    R = np.diag(rng.uniform(0.5, 1.5, 5)) * 1e-3
+    m0, P0 = np.full(3, 0.5), np.eye(3) * 0.01
+    y = G @ np.array([0.52, 0.45, 0.58]) + rng.multivariate_normal(np.zeros(5), R)
+    prec = np.linalg.inv(P0) + G.T @ np.linalg.solve(R, G)
+    cov = np.linalg.inv(prec)
+    mean = cov @ (np.linalg.solve(P0, m0) + G.T @ np.linalg.solve(R, y))
+
+    def log_prob(x):
+        r = y[None] - x @ G.T
+        d = x - m0
+        lp = -0.5 * np.einsum("ij,jk,ik->i", r, np.linalg.inv(R), r) - 0.5 * np.einsum("ij,jk,ik->i", d, np.linalg.inv(P0), d)
+        return np.where(np.all((x >= 0) & (x <= 1), axis=1), lp, -np.inf)
+
+    post = sample(log_prob, m0, nwalkers=32, seed=1, min_ess=2000)
+    assert post.converged and post.ess >= 2000
+    sd = np.sqrt(np.diag(cov))
+    assert np.all(np.abs(post.mean - mean) < 5 * sd / np.sqrt(post.ess))
+    rel = np.abs(post.cov - cov) / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    assert rel.max() < 0.15
+    # quantiles: the 5/95 % of a Gaussian are mean -+ 1.645 sd
+    q = np.quantile(post.samples, [0.05, 0.95], axis=0)
+    assert np.allclose(q[0], mean - 1.645 * sd, atol=0.12 * sd.max()) and np.allclose(q[1], mean + 1.645 * sd, atol=0.12 * sd.max())
+
+
+def test_eig_matches_closed_form_and_monte_carlo():
+    rng = np.random.default_rng(0)
+    cov = COV
+    G = rng.normal(size=(2, 3))
+    R = np.diag([2e-4, 5e-4])
+    F = G.T @ np.linalg.solve(R, G)
+    eig = float(expected_information_gain(cov, F))
+    # closed form: entropy reduction of the Gaussian update (Kalman form, independent of I + Sigma F)
+    post = cov - cov @ G.T @ np.linalg.solve(G @ cov @ G.T + R, G @ cov)
+    closed = 0.5 * (np.linalg.slogdet(cov)[1] - np.linalg.slogdet(post)[1])
+    assert eig == pytest.approx(closed, rel=1e-10)
+    # Monte Carlo mutual information E[log p(y|x) - log p(y)]
+    x = rng.multivariate_normal(MEAN, cov, size=40000)
+    y = x @ G.T + rng.multivariate_normal(np.zeros(2), R, size=len(x))
+    S = G @ cov @ G.T + R
+
+    def logn(r, c):
+        return -0.5 * np.einsum("ij,jk,ik->i", r, np.linalg.inv(c), r) - 0.5 * np.linalg.slogdet(2 * np.pi * c)[1]
+
+    mi = logn(y - x @ G.T, R) - logn(y - MEAN @ G.T, S)
+    assert eig == pytest.approx(mi.mean(), abs=4 * mi.std() / np.sqrt(len(mi)))
+
+
+def test_rank_setups_eig_is_consistent_and_default_unchanged():
+    material, done = (3.0, 0.5, 15.0), [Setup(40, 50)]
+    default = rank_setups(material, done)
+    explicit = rank_setups(material, done, criterion="perpendicularity")
+    assert default.criterion == "perpendicularity" and np.array_equal(default.score, explicit.score)
+    r = rank_setups(material, done, criterion="eig", covariance=COV)
+    best, value = r.best()
+    assert value == pytest.approx(np.nanmax(r.score)) and np.all(r.score >= 0)
+    i = int(np.argmax(r.score))
+    assert value == pytest.approx(float(expected_information_gain(r.covariance, r.information[i])))
+    # every Fisher matrix has the same trace (one information scale), rank one-ish and PSD
+    tr = np.trace(r.information, axis1=1, axis2=2)
+    assert np.allclose(tr, tr[0], rtol=1e-9)
+    assert np.all(np.linalg.eigvalsh(r.information).min(axis=1) > -1e-9 * tr[0])
+    with pytest.raises(ValueError, match="criterion"):
+        rank_setups(material, done, criterion="entropy")
+
+
+def test_noise_scale_counts_components_and_misfit():
+    sim = np.zeros((2, 40, 60), bool)
+    cap = sim.copy()
+    cap[:, 5:8, 5:9] = True  # blob 1 (12 px)
+    cap[:, 20:25, 30:32] = True  # blob 2 (10 px)
+    cap[0, 35, 50] = True  # a single stray pixel: below MIN_COMPONENT_PX, not counted
+    ns = noise_scale([sim], [cap], discretisation=1e-3, emulator=2e-4)
+    assert ns.n_eff == 4 and ns.frames == 2 and ns.n_pixels == 2 * 40 * 60
+    assert ns.loss_at_optimum == pytest.approx((2 * 22 + 1) / (2 * 40 * 60))
+    assert ns.variance == pytest.approx(ns.loss_at_optimum + 1.2e-3)
+    assert float(ns.log_likelihood(ns.variance)) == pytest.approx(-ns.n_eff / 2)  # chi-square = N_eff at s^2
+
+
+def test_correlation_area_of_block_noise():
+    rng = np.random.default_rng(0)
+    iid = rng.random((256, 256)) < 0.5
+    assert correlation_area(iid) == pytest.approx(1.0, abs=0.3)
+    blocks = np.kron(rng.random((64, 64)) < 0.5, np.ones((4, 4), bool))
+    assert correlation_area(blocks) == pytest.approx(16.0, rel=0.25)
+
+
+def test_emulator_recovers_a_smooth_loss_and_reports_held_out_error():
+    def f(x):
+        d = x - np.array([0.4, 0.5, 0.3])
+        return 0.01 + d @ np.diag([2.0, 0.5, 1.0]) @ d.T if d.ndim == 1 else 0.01 + np.einsum("ij,j,ij->i", d, [2.0, 0.5, 1.0], d) + 1e-4 * np.sin(20 * x[:, 0])
+
+    X = space_filling([0.4, 0.5, 0.3], 0.15, 64, seed=1)
+    assert np.all(np.abs(X - [0.4, 0.5, 0.3]) <= 0.15 + 1e-12)
+    Xt = space_filling([0.4, 0.5, 0.3], 0.12, 16, seed=2)
+    emu = LossEmulator(seed=0)
+    v = emu.validate(X, f(X), Xt, f(Xt))
+    assert v.n_train == 64 and v.n_test == 16 and v.rmse < 0.02 * v.loss_range
+    mean, sd = emu.predict(Xt[:3], return_std=True)
+    assert np.allclose(mean, emu.predict(Xt[:3])) and np.all(sd >= 0)
+    assert emu.within(np.array([[0.4, 0.5, 0.3]]))[0] and not emu.within(np.array([[0.9, 0.5, 0.3]]))[0]
+
+
+def test_ellipsoid_and_laplace_hessian():
+    e = ellipsoid(MEAN, COV, 0.9)
+    lam = np.linalg.eigvalsh(COV)
+    assert np.allclose(e.lengths ** 2 / 6.251388631170325, lam)  # chi2_3(0.9)
+    assert np.allclose(e.axes.T @ e.axes, np.eye(3), atol=1e-12)
+    prec = np.linalg.inv(COV)
+    h = finite_difference_hessian(lambda x: 0.5 * np.einsum("ij,jk,ik->i", x - MEAN, prec, x - MEAN), MEAN, 1e-3)
+    assert np.allclose(h, prec, rtol=1e-6)
+    assert alignment(e.thin, e.thin) == pytest.approx(1.0) and alignment(e.axes[:, 0], e.axes[:, 2]) < 1e-12
+
+
+_KILLED = textwrap.dedent("""
+    import os, signal, sys
+    import numpy as np
+    sys.path.insert(0, {root!r})
+    from similarity.posterior import sample
+    calls = [0]
+    def log_prob(x):
+        calls[0] += 1
+        if calls[0] == 201:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return -0.5 * np.sum(((x - 0.5) / 0.05) ** 2, axis=1)
+    sample(log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=300, check_every=100,
+           backend={path!r})
+""")
+
+
+def _log_prob(x):
+    return -0.5 * np.sum(((x - 0.5) / 0.05) ** 2, axis=1)
+
+
+def test_killed_run_resumes_from_its_backend(tmp_path):
+    path = tmp_path / "chain.h5"
+    proc = subprocess.run([sys.executable, "-c", _KILLED.format(root=str(ROOT), path=str(path))], timeout=120)
+    assert proc.returncode == -9
+    import emcee
+
+    done = emcee.backends.HDFBackend(str(path), read_only=True).iteration
+    assert 50 <= done < 300  # killed mid-run (about step 100), finished steps kept
+    resumed = sample(_log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=300, check_every=100,
+                     backend=path)
+    assert resumed.iterations == 300
+    fresh = sample(_log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=300, check_every=100,
+                   backend=tmp_path / "fresh.h5")
+    chain_a = emcee.backends.HDFBackend(str(path), read_only=True).get_chain()
+    chain_b = emcee.backends.HDFBackend(str(tmp_path / "fresh.h5"), read_only=True).get_chain()
+    assert np.array_equal(chain_a, chain_b)  # the resumed chain is the uninterrupted one
+    assert fresh.iterations == 300
+
+
+def test_corrupt_backend_is_a_one_line_error(tmp_path):
+    path = tmp_path / "posterior.h5"
+    path.write_bytes(b"not an HDF5 file" * 10)
+    with pytest.raises(ValueError, match="corrupt posterior backend") as exc:
+        sample(_log_prob, np.full(3, 0.5), nwalkers=8, backend=path, max_steps=10)
+    assert "\n" not in str(exc.value)
+
+
+def test_gaussian_check_helper_is_truncated_to_the_box():
+    post = gaussian_moments_check([0.02, 0.5, 0.5], np.eye(3) * 1e-3, nwalkers=16, seed=0, min_ess=200)
+    assert post.samples.min() >= 0.0 and post.mean[0] > 0.02  # truncation at 0 pushes the mean up

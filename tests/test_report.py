@@ -1,0 +1,102 @@
+"""`virheo report RUN` end to end on a shortened demo with the fake forward model, and its input checks."""
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from studies.cli import main
+
+TESTS = Path(__file__).resolve().parent
+ENV = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}")
+
+
+def _cli(*argv):
+    return subprocess.run([sys.executable, "-m", "studies.cli", *argv], env=ENV, capture_output=True, text=True,
+                          timeout=600)
+
+
+@pytest.fixture(scope="module")
+def reported(tmp_path_factory):
+    run = tmp_path_factory.mktemp("report") / "demo"
+    proc = _cli("demo", "--out", str(run), "--generations", "3", "--workers", "0", "--quiet",
+                "--simulator", "fake_forward:simulate")
+    assert proc.returncode == 0, proc.stderr
+    proc = _cli("report", str(run), "--workers", "0", "--new-simulations", "8", "--min-ess", "300",
+                "--no-discretisation", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    return run, proc
+
+
+def test_report_page_references_only_existing_local_files(reported):
+    run, proc = reported
+    page = run / "report" / "index.html"
+    assert f"report: {page}" in proc.stdout
+    text = page.read_text()
+    refs = re.findall(r'(?:src|href)\s*=\s*"([^"]*)"', text)
+    assert len(refs) >= 6  # intervals, corner, flow band, ellipsoids, EIG map, one overlay per setup
+    for ref in refs:
+        assert not re.match(r"^[a-z]+:", ref), ref  # no http:, https:, data: or file: URLs: opens offline
+        assert (page.parent / ref).is_file() and (page.parent / ref).stat().st_size > 1000, ref
+    assert not re.search(r"<script|<link|@import|url\(", text)
+
+
+def test_posterior_summary_is_coherent(reported):
+    run, _ = reported
+    s = json.loads((run / "posterior.json").read_text())
+    post = s["posterior"]
+    assert post["ess"] >= 300 and post["converged"]
+    for k in ("eta", "n", "sigma_y"):
+        assert post["quantiles"]["5"][k] <= post["quantiles"]["50"][k] <= post["quantiles"]["95"][k]
+    samples = np.load(run / "posterior_samples.npy")
+    assert samples.shape[1] == 3 and np.all((samples >= 0) & (samples <= 1))
+    band = s["flow_band"]
+    assert np.all(np.asarray(band["5"]) <= np.asarray(band["95"]))
+    assert s["noise"]["n_eff"] >= s["noise"]["frames"] and s["emulator"]["n_test"] >= 1
+    lengths = s["ellipsoid_posterior"]["lengths"]
+    assert lengths == sorted(lengths) and lengths[0] > 0
+    assert s["next_setups_eig"] and s["next_setups_eig"][0]["eig_nats"] >= s["next_setups_eig"][-1]["eig_nats"]
+
+
+def test_design_from_the_posterior(reported, capsys):
+    run, _ = reported
+    assert main(["design", "--criterion", "eig", "--posterior", str(run), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    s = json.loads((run / "posterior.json").read_text())
+    assert out["criterion"] == "eig" and out["score"] > 0
+    assert f"{out['next']['width_mm']:g}x{out['next']['height_mm']:g}" == s["next_setups_eig"][0]["setup"]
+
+
+def test_corrupt_backend_is_one_line_exit_2(reported, tmp_path, capsys):
+    run, _ = reported
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    (copy / "posterior.h5").write_bytes(b"\x00garbage" * 100)
+    argv = ["report", str(copy), "--workers", "0", "--new-simulations", "0", "--no-discretisation", "--quiet"]
+    proc = _cli(*argv)
+    assert proc.returncode == 2 and "corrupt posterior backend" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_run_without_estimate_and_bad_rheometer_file(tmp_path, capsys):
+    empty = tmp_path / "run"
+    empty.mkdir()
+    assert main(["report", str(empty)]) == 2
+    assert "no result.json" in capsys.readouterr().err
+    (empty / "result.json").write_text(json.dumps({"setups": ["40x50"]}))
+    assert main(["report", str(empty)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds no estimate" in err and len(err.splitlines()) == 1
+    (empty / "result.json").write_text(json.dumps({"estimate": {"eta": 1, "n": 0.5, "sigma_y": 2}}))
+    csv = tmp_path / "curve.csv"
+    csv.write_bytes(b"\xff\xfe" + "no units row\n".encode("utf-16-le"))
+    assert main(["report", str(empty), "--rheometer", str(csv)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "rheometer export" in err and len(err.splitlines()) == 1
+    assert main(["design", "--criterion", "eig", "--posterior", str(empty)]) == 2
+    assert "posterior.json" in capsys.readouterr().err
