@@ -335,6 +335,10 @@ def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     preset = E.get_preset(preset)
+    u = normalize(material.as_array())
+    if np.any(u - fd_step < 0) or np.any(u + fd_step > 1):
+        raise ValueError(f"{material} lies within the finite-difference step {fd_step:g} of the material space's "
+                         "boundary (normalised coordinates); choose a smaller --fd-step or another material")
     lo, hi = SETUP_RANGE_MM
     sizes = np.round(np.linspace(lo, hi, steps))
     setups = [Setup(float(w), float(h)) for h in sizes for w in sizes]
@@ -452,3 +456,47 @@ def fit_theta(study: dict, *, test_fraction: float = 0.3, seed: int = 0, name: s
                 "invalid_reference": int(np.sum(~np.isfinite(a_ref[idx]))),
             }
     return ours, report
+
+
+# -- comparing two maps on setup design (section 6) ---------------------------------------------------
+def compare_designs(ours, reference, *, count: int = 50, seed: int = 0) -> dict:
+    """Second setups chosen through two Theta maps: for the published first-estimate records (when the
+    shared data is present) and for ``count`` random materials with random first setups."""
+    from similarity.design import next_setup
+
+    def choose(theta, m, s1):
+        try:
+            return next_setup(m, [s1], theta=theta)
+        except ValueError:  # the map gives no Poiseuille flow for the first setup or any candidate
+            return None
+
+    records = []
+    try:
+        from mpm.datasets import first_estimates
+
+        rows = first_estimates()
+    except (FileNotFoundError, OSError):
+        rows = []
+    for row in rows:
+        m = Material(float(row["estimate_after_setup1_eta_Pa_s_n"]), float(row["estimate_after_setup1_n"]),
+                     float(row["estimate_after_setup1_sigma_y_Pa"]))
+        s1 = Setup(round(float(row["setup1_width_cm"]) * 10), round(float(row["setup1_height_cm"]) * 10))
+        chosen = Setup(round(float(row["chosen_setup2_width_cm"]) * 10), round(float(row["chosen_setup2_height_cm"]) * 10))
+        a, b = choose(ours, m, s1), choose(reference, m, s1)
+        records.append({"material": row["material"], "setup1": str(s1), "experimenters": str(chosen),
+                        "ours": None if a is None else str(a), "reference": None if b is None else str(b)})
+    rng = np.random.default_rng(seed)
+    agree = near = both = 0
+    for _ in range(count):
+        m = Material.from_array(denormalize(rng.uniform(0.05, 0.95, 3)))
+        s1 = random_setups(1, rng)[0]
+        a, b = choose(ours, m, s1), choose(reference, m, s1)
+        if a is None or b is None:
+            continue
+        both += 1
+        agree += a == b
+        near += np.hypot(a.width_mm - b.width_mm, a.height_mm - b.height_mm) <= 5.0
+    return {"records": records,
+            "records_reproduced_ours": sum(r["ours"] == r["experimenters"] for r in records),
+            "records_reproduced_reference": sum(r["reference"] == r["experimenters"] for r in records),
+            "random": {"materials": count, "both_valid": both, "same_setup": int(agree), "within_5mm": int(near)}}

@@ -21,6 +21,8 @@ def register(subparsers) -> None:
                    help="fraction of the study's materials held out of the fit (default 0.3)")
     f.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
     f.add_argument("--name", default="fitted", help="name stored in the map")
+    f.add_argument("--compare", type=int, default=50, metavar="N",
+                   help="random materials on which the second setups of the fitted and published maps are compared (default 50)")
     f.set_defaults(func=run_fit)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
@@ -35,6 +37,9 @@ def run_fit(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"--out: folder {out.parent} does not exist")
     theta, report = LS.fit_theta(study, test_fraction=args.test_fraction, seed=args.seed, name=args.name)
     theta.save(out)
+    from surrogate.theta import load
+
+    report["design"] = LS.compare_designs(theta, load("reference"), count=args.compare, seed=args.seed)
     report_path = out.with_name(out.stem + "_report.json")
     write_json(report_path, report)
     s = report["fit"]
@@ -46,5 +51,12 @@ def run_fit(args: argparse.Namespace) -> int:
             fmt = lambda v: "n/a" if v is None else f"{v:.1f}"
             print(f"  median angle to the FD loss normal on {label} landscapes: matched {fmt(m['matched'])} deg, "
                   f"fitted map {fmt(m['fitted'])} deg, published map {fmt(m['reference'])} deg")
+    d = report["design"]
+    if d["records"]:
+        print(f"  experimenters' second setups reproduced: fitted map {d['records_reproduced_ours']}/{len(d['records'])}, "
+              f"published map {d['records_reproduced_reference']}/{len(d['records'])}")
+    r = d["random"]
+    print(f"  {r['materials']} random materials: same second setup {r['same_setup']}/{r['both_valid']}, "
+          f"within 5 mm {r['within_5mm']}/{r['both_valid']}")
     print(f"map written to {out}; report {report_path}")
     return 0
