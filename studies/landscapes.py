@@ -354,17 +354,20 @@ def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.
     tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
     losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
     cond = np.full(len(setups), np.nan)
-    normals = []
+    normals, eigen = [], []
     for k, row in enumerate(losses):
         if np.all(np.isfinite(row)):
             sp = spectrum(hessian_from_stencil(row, fd_step))
             cond[k] = sp.condition
             normals.append(sp.q_max.tolist())
+            eigen.append(sp.eigenvalues.tolist())
         else:
             normals.append(None)
+            eigen.append(None)
     grid = cond.reshape(steps, steps)  # rows = height, columns = width
     res = {"material": material.to_dict(), "fd_step": fd_step, "preset": preset.name, "widths_mm": sizes.tolist(),
-           "heights_mm": sizes.tolist(), "condition": grid.tolist(), "q_max": normals,
+           "heights_mm": sizes.tolist(), "condition": grid.tolist(), "q_max": normals, "eigenvalues": eigen,
+           "setups": [str(s) for s in setups], "face_losses": losses[:, :6].tolist(),
            "min": float(np.nanmin(cond)), "median": float(np.nanmedian(cond)), "max": float(np.nanmax(cond)),
            "simulations": len(jobs) + len(setups), "wall_seconds": time.perf_counter() - t0}
     write_json(out / "conditioning.json", res)
