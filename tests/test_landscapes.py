@@ -112,6 +112,9 @@ def test_bad_input_exits_2(tmp_path, capsys):
     err = _one_line_exit_2(capsys, ["study", "conditioning", "--material", "1,0.5,2", "--steps", "1",
                                     "--out", str(tmp_path / "c"), "--quiet"])
     assert "steps" in err
+    err = _one_line_exit_2(capsys, ["study", "conditioning", "--material", "3.14,0.74,1.24", "--workers", "0",
+                                    "--out", str(tmp_path / "c"), "--quiet"])  # sigma_y within the FD step of 0
+    assert "boundary" in err
     (tmp_path / "notastudy").mkdir()
     err = _one_line_exit_2(capsys, ["theta", "fit", str(tmp_path / "notastudy"), "--out", str(tmp_path / "t.json")])
     assert "not a finished landscape study" in err

@@ -79,3 +79,12 @@ def test_design_uses_a_fitted_map_file(tmp_path, capsys):
     assert main(["design", "--material", "3.14,0.74,1.24", "--done", "29x59", "--theta", str(path), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["next"] == {"width_mm": 32.0, "height_mm": 20.0}
+
+
+def test_packaged_fitted_map_loads_and_designs(capsys):
+    fitted = load("fitted")
+    assert isinstance(fitted, ThetaMap) and fitted.name == "fitted" and fitted.theta.shape == (66,)
+    assert not np.array_equal(fitted.theta, load("reference").theta)
+    assert main(["design", "--material", "9.82,0.705,12.9", "--done", "64x37", "--theta", "fitted", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["theta"] == "fitted" and 20 <= out["next"]["width_mm"] <= 70
