@@ -55,7 +55,7 @@ class StudyConfig:
     grid: int = 3  # points per axis of the landscape block
     half_width: float = 0.05  # normalised half-width of the block
     fd_step: float = 0.05  # finite-difference step (normalised)
-    preset: str = "quick"
+    preset: str = "demo"
     seed: int = 0
     density: float = 1000.0
 
@@ -152,17 +152,6 @@ def match(material: Material, offsets, losses, c_pa=C_SEARCH, d0: float = theta_
 
 
 # -- the study -----------------------------------------------------------------------------------------
-def _experiment(pair: Pair, frames, density: float):
-    return E.EmulatedExperiment(f"landscape_{pair.setup}", float(pair.setup.width_mm), float(pair.setup.height_mm),
-                                40.0, float(density), _camera(), frames, pair.material)
-
-
-def _camera():
-    from mpm.camera import Camera
-
-    return Camera.default()
-
-
 def _prepare(out: Path, config: StudyConfig) -> list[Pair]:
     out.mkdir(parents=True, exist_ok=True)
     pairs = sample_pairs(config)
@@ -198,18 +187,18 @@ def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batc
         shots = E.emulate(m, [pairs[i].setup for i in idx], density=config.density, preset=preset, store=store,
                           executor=executor, simulator=simulator)
         for i, e in zip(idx, shots):
-            frames[i] = e.frames
+            frames[i] = e
 
     block = grid_offsets(config.grid, config.half_width)
     probes = stencil(config.fd_step)
     offsets = np.vstack([block, probes])
     jobs = []
-    for p, f in zip(pairs, frames):
-        ref = _experiment(p, f, config.density)
+    for p, ref in zip(pairs, frames):
+        f = ref.frames
         eid = batch.experiment_id(f, ref.name)
         u0 = normalize(p.material.as_array())
         for du in offsets:
-            req = E.simulation_request(Material.from_array(denormalize(u0 + du)), ref, preset, simulator)
+            req = E.simulation_request(Material.from_array(denormalize(u0 + du)), ref, preset.final, simulator)
             jobs.append((req, eid, f))
     say(f"{len(jobs)} landscape probes ({len(offsets)} per pair)")
     tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
@@ -325,7 +314,7 @@ def _trace(ax, q, a, b, hw, color, label):
 
 
 # -- condition numbers over the setup space (Fig. 9) --------------------------------------------------
-def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="quick", store,
+def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", store,
                  executor=None, simulator: str = batch.DEFAULT_SIMULATOR, progress=None, density: float = 1000.0) -> dict:
     """Condition number of the FD Hessian of ``material``'s loss at each setup of a ``steps`` x ``steps``
     grid over the setup space; writes ``conditioning.json`` and ``conditioning.png`` into ``out``."""
@@ -350,7 +339,7 @@ def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.
     for e in shots:
         eid = batch.experiment_id(e.frames, e.name)
         for du in probes:
-            jobs.append((E.simulation_request(Material.from_array(denormalize(u0 + du)), e, preset, simulator), eid, e.frames))
+            jobs.append((E.simulation_request(Material.from_array(denormalize(u0 + du)), e, preset.final, simulator), eid, e.frames))
     tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
     losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
     cond = np.full(len(setups), np.nan)

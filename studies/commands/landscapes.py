@@ -3,12 +3,14 @@ finite-difference loss normals and condition numbers (section 5.2, Fig. 9)."""
 from __future__ import annotations
 
 import argparse
+from contextlib import contextmanager
+from pathlib import Path
 
 
 def _common(p) -> None:
     p.add_argument("--fd-step", type=float, default=0.05, metavar="H",
                    help="finite-difference step in the normalised material space (default 0.05, see docs/landscapes.md)")
-    p.add_argument("--preset", default="quick", choices=("quick", "paper"), help="forward model resolution (default quick)")
+    p.add_argument("--preset", default="demo", choices=("demo", "footage", "paper"), help="forward model resolution (default demo: 5 mm cells)")
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
     p.add_argument("--scheduler", default=None, metavar="ADDR", help="dask.distributed scheduler address")
     p.add_argument("--store", default=None, metavar="PATH", help="simulation store (default OUT/store)")
@@ -45,6 +47,22 @@ def register(study_subparsers) -> None:
     c.set_defaults(func=run_conditioning)
 
 
+@contextmanager
+def run_context(args):
+    """(out folder, store, executor): ``--out``, ``--store`` (default OUT/store), ``--scheduler`` or ``--workers``."""
+    from mpm import batch
+    from mpm.store import Store
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    store = Store(args.store or out / "store")
+    executor = batch.connect(args.scheduler) if args.scheduler else batch.local_executor(args.workers)
+    try:
+        yield out, store, executor
+    finally:
+        batch.shutdown(executor)
+
+
 def _check(args) -> None:
     if args.workers is not None and args.workers < 0:
         raise ValueError(f"--workers {args.workers} must be >= 0")
@@ -53,7 +71,7 @@ def _check(args) -> None:
 def run_landscapes(args: argparse.Namespace) -> int:
     from mpm import batch
     from studies import landscapes as LS
-    from studies.commands.estimate import run_context
+    
     from studies.report import progress_bars
 
     _check(args)
@@ -77,7 +95,7 @@ def run_conditioning(args: argparse.Namespace) -> int:
     from mpm import batch
     from similarity.space import Material
     from studies import landscapes as LS
-    from studies.commands.estimate import run_context
+    
     from studies.report import progress_bars
 
     _check(args)
