@@ -11,7 +11,8 @@ variables, the layout of the authors' published map (our own description of it).
 mapped onto a wall shear stress C = 5 + r (500 - 5) Pa, and S^PP = (P, L) = (2500 Pa/m, C / P).
 
 ``load("reference")`` returns the authors' published coefficients, shipped as package data
-with attribution (CC BY-NC 4.0); ``load(path)`` reads a map saved by :meth:`ThetaMap.save`.
+with attribution (CC BY-NC 4.0); ``load("fitted")`` our own map, fitted to MPM loss landscapes by
+:mod:`surrogate.theta_fit`; ``load(path)`` reads a map saved by :meth:`ThetaMap.save`.
 """
 from __future__ import annotations
 
@@ -175,21 +176,25 @@ def from_dict(d: dict, name: str = "unnamed") -> ThetaMap:
     )
 
 
+PACKAGED = ("reference", "fitted")
+
+
 @lru_cache(maxsize=8)
-def _load_reference() -> ThetaMap:
-    text = resources.files("surrogate").joinpath("data/theta_reference.json").read_text()
-    return from_dict(json.loads(text), "reference")
+def _load_packaged(name: str) -> ThetaMap:
+    text = resources.files("surrogate").joinpath(f"data/theta_{name}.json").read_text()
+    return from_dict(json.loads(text), name)
 
 
 def load(which="reference") -> ThetaMap:
-    """``"reference"``: the authors' published map; otherwise a path to a JSON file saved by ``save``."""
+    """``"reference"``: the authors' published map; ``"fitted"``: our map fitted to MPM landscapes
+    (docs/landscapes.md gives the command that refits it); otherwise a path to a JSON file saved by ``save``."""
     if isinstance(which, ThetaMap):
         return which
-    if str(which) == "reference":
-        return _load_reference()
+    if str(which) in PACKAGED:
+        return _load_packaged(str(which))
     path = Path(which)
     if not path.is_file():
-        raise FileNotFoundError(f"Theta map file {path} not found (use 'reference' or a JSON file saved by ThetaMap.save)")
+        raise FileNotFoundError(f"Theta map file {path} not found (use 'reference', 'fitted' or a JSON file saved by ThetaMap.save)")
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:

@@ -20,6 +20,9 @@ def register(subparsers) -> None:
     e.add_argument("--seed", type=integer, default=0, help="seed of the materials, setups and CMA-ES (default 0)")
     add_run_options(e, default_out="./virheo-emulation")
     e.set_defaults(func=run_emulation)
+    from studies.commands import landscapes
+
+    landscapes.register(sub)
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 

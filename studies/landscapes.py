@@ -1,0 +1,494 @@
+"""Loss-landscape studies of section 5: MPM landscapes, finite-difference loss normals, matching to the
+plane-Poiseuille normal (eq. 43) and the data that Theta is fitted to (section 5.5).
+
+A study draws materials M by Poisson-disk sampling in the normalised material space and, for each,
+setups S from the 1 mm grid. For each pair (M, S) the footage of M in S is emulated with the
+preset's forward model, and the loss L(M~, M; S) (eq. 3) is evaluated
+
+* on a regular ``grid`` ^ 3 block of points M~ around M, ``half_width`` either side in normalised
+  coordinates (the landscape of Fig. 6), and
+* on the 18-point finite-difference stencil of :mod:`similarity.fd_hessian` with step ``fd_step``,
+  giving the Hessian, its eigenvalues, the loss normal q_max and the condition number.
+
+Every simulation goes through :func:`mpm.batch.evaluate_losses` and the store, all pairs in one
+batch: a killed study re-run with the same arguments serves what finished from the store. With
+``grid=3`` and ``half_width=fd_step`` the block contains the stencil, so a pair costs 26 simulations
+plus its reference.
+
+Matching: for each candidate wall stress C = P L of the 1D search (P fixed, as in
+:mod:`surrogate.theta`) the plane-Poiseuille loss normal is computed (:func:`similarity.normals.normals_at`)
+and scored against the landscape by eq. 43; the best C is the target of the Theta fit.
+
+Folder layout: ``study.json`` (the configuration, materials and setups), ``landscapes.json`` (per pair:
+loss values, Hessian, spectrum, matching), ``landscape_*.png`` (Fig. 6-style slices).
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mpm import batch
+from similarity import estimate as E
+from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
+from similarity.normals import normals_at
+from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, normalize
+from studies.report import save_figure, write_json
+from surrogate import theta_fit
+
+STUDY_FILE = "study.json"
+RESULT_FILE = "landscapes.json"
+FORMAT = "virheometry-landscapes/1"
+P_SEARCH = 2500.0  # Pa/m: P of the 1D search (only P L matters, section 5.5)
+C_SEARCH = np.geomspace(0.5, 2000.0, 400)  # Pa: candidate wall stresses C = P L of the 1D search
+
+
+@dataclass(frozen=True)
+class StudyConfig:
+    """Size and resolution of a landscape study."""
+
+    materials: int = 10
+    setups_per_material: int = 3
+    grid: int = 3  # points per axis of the landscape block
+    half_width: float = 0.05  # normalised half-width of the block
+    fd_step: float = 0.05  # finite-difference step (normalised)
+    preset: str = "demo"
+    seed: int = 0
+    density: float = 1000.0
+
+    def check(self) -> "StudyConfig":
+        if self.materials < 1 or self.setups_per_material < 1:
+            raise ValueError(f"a study needs >= 1 material and >= 1 setup per material "
+                             f"(got {self.materials} and {self.setups_per_material})")
+        if self.grid < 2:
+            raise ValueError(f"--grid {self.grid}: a landscape grid needs at least 2 points per axis")
+        for name in ("half_width", "fd_step"):
+            v = getattr(self, name)
+            if not 0 < v <= 0.2:
+                raise ValueError(f"{name}={v} must lie in (0, 0.2] (normalised material space)")
+        E.get_preset(self.preset)
+        return self
+
+    @property
+    def margin(self) -> float:
+        """Materials stay this far from the faces of [0, 1]^3, so every probe is inside the space."""
+        return max(self.half_width, self.fd_step) + 0.02
+
+
+@dataclass
+class Pair:
+    material: Material
+    setup: Setup
+
+
+# -- sampling ----------------------------------------------------------------------------------------
+def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float = 0.3) -> tuple[np.ndarray, float]:
+    """``count`` points in [margin, 1 - margin]^3 by Poisson-disk sampling (scipy.stats.qmc.PoissonDisk).
+
+    Returns the points (count, 3) and the minimum distance they respect (the radius, shrunk by 15 %
+    steps until ``count`` points fit, times the box's side).
+    """
+    from scipy.stats import qmc
+
+    if count < 1:
+        raise ValueError(f"count={count} must be >= 1")
+    if not 0 <= margin < 0.5:
+        raise ValueError(f"margin={margin} must lie in [0, 0.5)")
+    r = radius
+    while True:
+        pts = qmc.PoissonDisk(d=3, radius=r, seed=seed).random(count)
+        if len(pts) >= count:
+            break
+        r *= 0.85
+    side = 1.0 - 2.0 * margin
+    return margin + side * pts[:count], r * side
+
+
+def random_setups(count: int, rng: np.random.Generator) -> list[Setup]:
+    """``count`` distinct setups from the 1 mm grid of widths and heights (20..70 mm)."""
+    lo, hi = SETUP_RANGE_MM
+    size = hi - lo + 1
+    idx = rng.choice(size * size, size=count, replace=False)
+    return [Setup(float(lo + i % size), float(lo + i // size)) for i in idx]
+
+
+def grid_offsets(size: int, half_width: float) -> np.ndarray:
+    """Offsets (size^3, 3) of a regular block [-half_width, half_width]^3, index order (eta, n, sigma_y)."""
+    if size < 2:
+        raise ValueError(f"grid size {size}: a landscape grid needs at least 2 points per axis")
+    axis = half_width * np.linspace(-1.0, 1.0, size)
+    g = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1)
+    return g.reshape(-1, 3)
+
+
+def sample_pairs(config: StudyConfig) -> list[Pair]:
+    """The study's (M, S) pairs: Poisson-disk materials, each with its own random setups."""
+    pts, _ = poisson_disk(config.materials, config.seed, config.margin)
+    rng = np.random.default_rng(config.seed)
+    pairs = []
+    for u in pts:
+        m = Material.from_array(denormalize(u))
+        pairs += [Pair(m, s) for s in random_setups(config.setups_per_material, rng)]
+    return pairs
+
+
+# -- matching ------------------------------------------------------------------------------------------
+def poiseuille_normals(material: Material, c_pa=C_SEARCH) -> np.ndarray:
+    """Plane-Poiseuille loss normals (k, 3) of ``material`` for wall stresses ``c_pa`` (NaN where no flow)."""
+    c = np.asarray(c_pa, dtype=float)
+    q = normals_at(np.broadcast_to(material.as_array(), (len(c), 3)), np.full_like(c, P_SEARCH), c / P_SEARCH)
+    return np.where((c > material.sigma_y)[:, None], q, np.nan)
+
+
+def match(material: Material, offsets, losses, c_pa=C_SEARCH, d0: float = theta_fit.D0) -> dict:
+    """The best wall stress C of the 1D search for one landscape (eq. 43) and its normal."""
+    q = poiseuille_normals(material, c_pa)
+    i, scores = theta_fit.best_match(offsets, losses, q, d0)
+    return {"C_Pa": float(np.asarray(c_pa)[i]), "score": float(scores[i]), "q_pp": q[i].tolist(),
+            "scores": [None if not np.isfinite(s) else float(s) for s in scores]}
+
+
+# -- the study -----------------------------------------------------------------------------------------
+def _prepare(out: Path, config: StudyConfig) -> list[Pair]:
+    out.mkdir(parents=True, exist_ok=True)
+    pairs = sample_pairs(config)
+    meta = {"format": FORMAT, "config": asdict(config),
+            "pairs": [{"material": p.material.to_dict(), "setup": p.setup.to_dict()} for p in pairs]}
+    path = out / STUDY_FILE
+    if path.exists():
+        old = json.loads(path.read_text())
+        if old.get("config") != meta["config"]:
+            raise ValueError(f"{out} holds a landscape study with another configuration; use another --out")
+    else:
+        write_json(path, meta)
+    return pairs
+
+
+def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batch.DEFAULT_SIMULATOR,
+        progress=None, plots: int = 3) -> dict:
+    """Run (or resume) a landscape study in folder ``out``; returns the content of ``landscapes.json``."""
+    config.check()
+    out = Path(out)
+    t0 = time.perf_counter()
+    pairs = _prepare(out, config)
+    preset = E.get_preset(config.preset)
+    say = (lambda text: progress({"event": "message", "text": text})) if progress else (lambda text: None)
+
+    # ground-truth footage, one batch for all pairs
+    by_material: dict = {}
+    for i, p in enumerate(pairs):
+        by_material.setdefault(p.material, []).append(i)
+    say(f"{len(pairs)} pairs: simulating the ground-truth footage")
+    frames = [None] * len(pairs)
+    for m, idx in by_material.items():
+        shots = E.emulate(m, [pairs[i].setup for i in idx], density=config.density, preset=preset, store=store,
+                          executor=executor, simulator=simulator)
+        for i, e in zip(idx, shots):
+            frames[i] = e
+
+    block = grid_offsets(config.grid, config.half_width)
+    probes = stencil(config.fd_step)
+    offsets = np.vstack([block, probes])
+    jobs = []
+    for p, ref in zip(pairs, frames):
+        f = ref.frames
+        eid = batch.experiment_id(f, ref.name)
+        u0 = normalize(p.material.as_array())
+        for du in offsets:
+            req = E.simulation_request(Material.from_array(denormalize(u0 + du)), ref, preset.final, simulator)
+            jobs.append((req, eid, f))
+    say(f"{len(jobs)} landscape probes ({len(offsets)} per pair)")
+    tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
+    losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(pairs), -1)
+
+    records = []
+    for p, row in zip(pairs, losses):
+        grid_losses, fd = row[: len(block)], row[len(block):]
+        rec = {"material": p.material.to_dict(), "setup": p.setup.to_dict(), "losses": row[: len(block)].tolist()}
+        if np.all(np.isfinite(fd)):
+            spec = spectrum(hessian_from_stencil(fd, config.fd_step))
+            rec |= {"hessian": hessian_from_stencil(fd, config.fd_step).tolist(), **spec.to_dict()}
+        else:
+            rec |= {"hessian": None, "q_max": None, "eigenvalues": None, "condition": None}
+        if np.any(np.isfinite(grid_losses)) and np.nanmax(grid_losses) > 0:
+            mt = match(p.material, block, grid_losses)
+            rec["match"] = mt
+            if rec["q_max"] is not None:
+                rec["match"]["angle_fd_deg"] = float(angle_deg(rec["q_max"], mt["q_pp"]))
+        else:
+            rec["match"] = None
+        records.append(rec)
+    result = {"format": FORMAT, "config": asdict(config), "offsets": block.tolist(),
+              "fd_stencil": probes.tolist(), "pairs": records, "simulations": len({j[0].key for j in jobs}) + len(pairs),
+              "wall_seconds": time.perf_counter() - t0}
+    write_json(out / RESULT_FILE, result)
+    for k, rec in enumerate(records[:plots]):
+        if rec["match"] is not None:
+            plot_slices(out / f"landscape_{k:02d}.png", rec, block, config.grid)
+    return result
+
+
+def load(folder) -> dict:
+    """A finished study's ``landscapes.json`` (ValueError / FileNotFoundError for anything else)."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise NotADirectoryError(f"{folder} is not a folder (expected a landscape study written by 'virheo study landscapes')")
+    path = folder / RESULT_FILE
+    if not path.is_file():
+        raise FileNotFoundError(f"{folder} is not a finished landscape study: no {RESULT_FILE} "
+                                "(run 'virheo study landscapes --out FOLDER' first)")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a landscape study file (format {FORMAT})")
+    return data
+
+
+# -- plots ---------------------------------------------------------------------------------------------
+def poiseuille_landscape(material: Material, offsets, c_pa: float) -> np.ndarray:
+    """The plane-Poiseuille loss (eq. 26) at material offsets (normalised) for wall stress C = P L."""
+    from poiseuille import loss
+
+    m_tilde = denormalize(normalize(material.as_array()) + np.asarray(offsets, dtype=float))
+    return loss(m_tilde, material.as_array(), P_SEARCH, c_pa / P_SEARCH)
+
+
+def plot_slices(path, rec: dict, offsets, grid: int) -> Path:
+    """Fig. 6 style: the three central slices of the MPM landscape (top) beside the matched Poiseuille
+    landscape (bottom), with the similarity set's trace (the plane normal to q) drawn as a line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m = Material(**rec["material"])
+    offsets = np.asarray(offsets, dtype=float)
+    mpm = np.asarray(rec["losses"], dtype=float).reshape(grid, grid, grid)
+    # a finer Poiseuille grid over the same block: cheap and closed-form
+    hw = float(np.max(np.abs(offsets)))
+    fine = 41
+    axis = np.linspace(-hw, hw, fine)
+    names = ("eta", "n", "sigma_y")
+    fig, axes = plt.subplots(2, 3, figsize=(10, 6.4), dpi=100)
+    q_pp = np.asarray(rec["match"]["q_pp"])
+    q_fd = None if rec.get("q_max") is None else np.asarray(rec["q_max"])
+    mid = grid // 2
+    for col, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
+        c = 3 - a - b
+        sl = [slice(None)] * 3
+        sl[c] = mid
+        img = mpm[tuple(sl)]  # axes (a, b)
+        ax = axes[0, col]
+        ax.imshow(img.T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis", interpolation="bicubic" if grid > 3 else "nearest")
+        if q_fd is not None:
+            _trace(ax, q_fd, a, b, hw, "w", "FD normal")
+        _trace(ax, q_pp, a, b, hw, "r", "matched PP")
+        ax.set(xlabel=f"d{names[a]} (normalised)", ylabel=f"d{names[b]}", title=f"MPM loss, d{names[c]} = 0")
+        pts = np.zeros((fine, fine, 3))
+        pts[..., a], pts[..., b] = np.meshgrid(axis, axis, indexing="ij")
+        pp = poiseuille_landscape(m, pts.reshape(-1, 3), rec["match"]["C_Pa"]).reshape(fine, fine)
+        ax = axes[1, col]
+        ax.imshow(pp.T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis")
+        _trace(ax, q_pp, a, b, hw, "r", "matched PP")
+        ax.set(xlabel=f"d{names[a]} (normalised)", ylabel=f"d{names[b]}", title=f"Poiseuille loss, C = {rec['match']['C_Pa']:.3g} Pa")
+    axes[0, 0].legend(fontsize=7, loc="lower left")
+    s = rec["setup"]
+    fig.suptitle(f"eta={m.eta:.3g} Pa s^n, n={m.n:.3g}, sigma_y={m.sigma_y:.3g} Pa; setup {s['width_mm']:g}x{s['height_mm']:g} mm")
+    return save_figure(fig, path)
+
+
+def _trace(ax, q, a, b, hw, color, label):
+    """The line where the plane q . dM = 0 cuts the (a, b) slice: direction (-q_b, q_a)."""
+    d = np.array([-q[b], q[a]])
+    if np.linalg.norm(d) < 1e-12:
+        return
+    d = d / np.linalg.norm(d) * hw * 1.5
+    ax.plot([-d[0], d[0]], [-d[1], d[1]], "--", color=color, lw=1.5, label=label)
+    ax.set_xlim(-hw, hw)
+    ax.set_ylim(-hw, hw)
+
+
+# -- condition numbers over the setup space (Fig. 9) --------------------------------------------------
+def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", store,
+                 executor=None, simulator: str = batch.DEFAULT_SIMULATOR, progress=None, density: float = 1000.0) -> dict:
+    """Condition number of the FD Hessian of ``material``'s loss at each setup of a ``steps`` x ``steps``
+    grid over the setup space; writes ``conditioning.json`` and ``conditioning.png`` into ``out``."""
+    if steps < 2:
+        raise ValueError(f"steps={steps}: the setup grid needs at least 2 points per axis")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    preset = E.get_preset(preset)
+    u = normalize(material.as_array())
+    if np.any(u - fd_step < 0) or np.any(u + fd_step > 1):
+        raise ValueError(f"{material} lies within the finite-difference step {fd_step:g} of the material space's "
+                         "boundary (normalised coordinates); choose a smaller --fd-step or another material")
+    lo, hi = SETUP_RANGE_MM
+    sizes = np.round(np.linspace(lo, hi, steps))
+    setups = [Setup(float(w), float(h)) for h in sizes for w in sizes]
+    shots = E.emulate(material, setups, density=density, preset=preset, store=store, executor=executor,
+                      simulator=simulator)
+    probes = stencil(fd_step)
+    u0 = normalize(material.as_array())
+    jobs = []
+    for e in shots:
+        eid = batch.experiment_id(e.frames, e.name)
+        for du in probes:
+            jobs.append((E.simulation_request(Material.from_array(denormalize(u0 + du)), e, preset.final, simulator), eid, e.frames))
+    tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
+    losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
+    cond = np.full(len(setups), np.nan)
+    normals, eigen = [], []
+    for k, row in enumerate(losses):
+        if np.all(np.isfinite(row)):
+            sp = spectrum(hessian_from_stencil(row, fd_step))
+            cond[k] = sp.condition
+            normals.append(sp.q_max.tolist())
+            eigen.append(sp.eigenvalues.tolist())
+        else:
+            normals.append(None)
+            eigen.append(None)
+    grid = cond.reshape(steps, steps)  # rows = height, columns = width
+    res = {"material": material.to_dict(), "fd_step": fd_step, "preset": preset.name, "widths_mm": sizes.tolist(),
+           "heights_mm": sizes.tolist(), "condition": grid.tolist(), "q_max": normals, "eigenvalues": eigen,
+           "setups": [str(s) for s in setups], "face_losses": losses[:, :6].tolist(),
+           "min": float(np.nanmin(cond)), "median": float(np.nanmedian(cond)), "max": float(np.nanmax(cond)),
+           "simulations": len(jobs) + len(setups), "wall_seconds": time.perf_counter() - t0}
+    write_json(out / "conditioning.json", res)
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(5.2, 4.4), dpi=110)
+    half = (sizes[1] - sizes[0]) / 2
+    im = ax.imshow(np.log10(grid), origin="lower", cmap="magma", interpolation="nearest",
+                   extent=(sizes[0] - half, sizes[-1] + half, sizes[0] - half, sizes[-1] + half))
+    fig.colorbar(im, ax=ax, label="log10 condition number")
+    ax.set(xlabel="width W [mm]", ylabel="height H [mm]",
+           title=f"eta={material.eta:.3g} Pa s^n, n={material.n:.3g}, sigma_y={material.sigma_y:.3g} Pa")
+    save_figure(fig, out / "conditioning.png")
+    return res
+
+
+# -- fitting Theta to a study (section 5.5) -----------------------------------------------------------
+def map_angles(records, theta) -> np.ndarray:
+    """Angle (deg) between each record's FD loss normal and the normal predicted through ``theta``
+    (Algorithm 2); NaN where the map gives no Poiseuille flow or the FD Hessian is missing."""
+    from similarity.normals import loss_normals
+
+    out = np.full(len(records), np.nan)
+    for k, r in enumerate(records):
+        if r.get("q_max") is None:
+            continue
+        m = Material(**r["material"])
+        q, valid = loss_normals(m, np.array([r["setup"]["width_mm"]]), np.array([r["setup"]["height_mm"]]), theta)
+        if bool(valid[0]):
+            out[k] = float(angle_deg(r["q_max"], q[0]))
+    return out
+
+
+def split(records, test_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Train / test indices, whole materials at a time (a test landscape's material is never fitted)."""
+    if not 0 <= test_fraction < 1:
+        raise ValueError(f"test fraction {test_fraction} must lie in [0, 1)")
+    keys = sorted({json.dumps(r["material"], sort_keys=True) for r in records})
+    rng = np.random.default_rng(seed)
+    n_test = int(round(test_fraction * len(keys)))
+    test_keys = set(rng.permutation(keys)[:n_test].tolist())
+    test = [i for i, r in enumerate(records) if json.dumps(r["material"], sort_keys=True) in test_keys]
+    train = [i for i in range(len(records)) if i not in set(test)]
+    return train, test
+
+
+def fit_theta(study: dict, *, test_fraction: float = 0.3, seed: int = 0, name: str = "fitted"):
+    """Fit Theta to a study's matched landscapes; returns (ThetaMap, report dict).
+
+    The report gives the cross-validated error of the fit and, per landscape, the angle between the
+    FD loss normal and the normals predicted through the fitted and the published maps, on the
+    landscapes used in the fit and on the held-out ones.
+    """
+    from surrogate.theta import load as load_theta
+
+    records = [r for r in study["pairs"] if r.get("match") is not None]
+    if len(records) < 3:
+        raise ValueError(f"the study has {len(records)} matched landscapes; the fit needs at least 3")
+    train, test = split(records, test_fraction, seed)
+    if len(train) < 3:
+        raise ValueError(f"only {len(train)} landscapes left to fit after holding out {test_fraction:g}; lower --test-fraction")
+    rows = [records[i] for i in train]
+    x = theta_fit.inputs([[r["material"][k] for k in ("eta", "n", "sigma_y")] for r in rows],
+                         [r["setup"]["width_mm"] for r in rows], [r["setup"]["height_mm"] for r in rows])
+    c = np.array([r["match"]["C_Pa"] for r in rows])
+    pipe, summary = theta_fit.fit(x, c)
+    cfg = study["config"]
+    attribution = (f"fitted by virheometry to {len(rows)} MPM landscapes (preset {cfg['preset']}, grid {cfg['grid']}, "
+                   f"half-width {cfg['half_width']}, FD step {cfg['fd_step']}, seed {cfg['seed']})")
+    ours = theta_fit.to_theta_map(pipe, name=name, attribution=attribution)
+    ref = load_theta("reference")
+    report = {"fit": summary, "train": train, "test": test, "landscapes": []}
+    a_ours, a_ref = map_angles(records, ours), map_angles(records, ref)
+    a_match = [r["match"].get("angle_fd_deg", float("nan")) for r in records]
+    for k, r in enumerate(records):
+        report["landscapes"].append({"material": r["material"], "setup": r["setup"], "used_in_fit": k in set(train),
+                                     "C_matched_Pa": r["match"]["C_Pa"], "angle_matched_deg": a_match[k],
+                                     "angle_fitted_deg": a_ours[k], "angle_reference_deg": a_ref[k]})
+    for label, idx in (("train", train), ("test", test)):
+        if idx:
+            report[f"median_angle_{label}"] = {
+                "matched": float(np.nanmedian(np.asarray(a_match)[idx])),
+                "fitted": float(np.nanmedian(a_ours[idx])) if np.any(np.isfinite(a_ours[idx])) else None,
+                "reference": float(np.nanmedian(a_ref[idx])) if np.any(np.isfinite(a_ref[idx])) else None,
+                "invalid_fitted": int(np.sum(~np.isfinite(a_ours[idx]))),
+                "invalid_reference": int(np.sum(~np.isfinite(a_ref[idx]))),
+            }
+    return ours, report
+
+
+# -- comparing two maps on setup design (section 6) ---------------------------------------------------
+def compare_designs(ours, reference, *, count: int = 50, seed: int = 0) -> dict:
+    """Second setups chosen through two Theta maps: for the published first-estimate records (when the
+    shared data is present) and for ``count`` random materials with random first setups."""
+    from similarity.design import next_setup
+
+    def choose(theta, m, s1):
+        try:
+            return next_setup(m, [s1], theta=theta)
+        except ValueError:  # the map gives no Poiseuille flow for the first setup or any candidate
+            return None
+
+    records = []
+    try:
+        from mpm.datasets import first_estimates
+
+        rows = first_estimates()
+    except (FileNotFoundError, OSError):
+        rows = []
+    for row in rows:
+        m = Material(float(row["estimate_after_setup1_eta_Pa_s_n"]), float(row["estimate_after_setup1_n"]),
+                     float(row["estimate_after_setup1_sigma_y_Pa"]))
+        s1 = Setup(round(float(row["setup1_width_cm"]) * 10), round(float(row["setup1_height_cm"]) * 10))
+        chosen = Setup(round(float(row["chosen_setup2_width_cm"]) * 10), round(float(row["chosen_setup2_height_cm"]) * 10))
+        a, b = choose(ours, m, s1), choose(reference, m, s1)
+        records.append({"material": row["material"], "setup1": str(s1), "experimenters": str(chosen),
+                        "ours": None if a is None else str(a), "reference": None if b is None else str(b)})
+    rng = np.random.default_rng(seed)
+    agree = near = both = 0
+    for _ in range(count):
+        m = Material.from_array(denormalize(rng.uniform(0.05, 0.95, 3)))
+        s1 = random_setups(1, rng)[0]
+        a, b = choose(ours, m, s1), choose(reference, m, s1)
+        if a is None or b is None:
+            continue
+        both += 1
+        agree += a == b
+        near += np.hypot(a.width_mm - b.width_mm, a.height_mm - b.height_mm) <= 5.0
+    return {"records": records,
+            "records_reproduced_ours": sum(r["ours"] == r["experimenters"] for r in records),
+            "records_reproduced_reference": sum(r["reference"] == r["experimenters"] for r in records),
+            "random": {"materials": count, "both_valid": both, "same_setup": int(agree), "within_5mm": int(near)}}

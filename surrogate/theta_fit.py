@@ -1,0 +1,150 @@
+"""Learning the conversion map Theta (section 5.5): matching score (eq. 43), the 1D search over P L,
+and the reciprocal-polynomial fit as a scikit-learn ``Pipeline``.
+
+* :func:`matching_score` weighs the dam-break loss values of a landscape by their closeness to the
+  plane through M whose normal is a candidate plane-Poiseuille loss normal (eq. 43); low = good match.
+* :func:`best_match` evaluates it for a set of candidate normals (one per wall stress C = P L of the
+  1D search; the caller computes them from the Poiseuille Hessian) and returns the best.
+* :func:`make_pipeline`: ten reciprocal features -> ``PolynomialFeatures(degree=2)`` ->
+  ``StandardScaler`` -> ``RidgeCV`` (regularisation chosen by leave-one-out cross-validation). The
+  target is the rate r = (C - C_lo) / (C_hi - C_lo) of :mod:`surrogate.theta`.
+* :func:`to_theta_map` folds a fitted pipeline into the 66 coefficients of the published layout,
+  :func:`pipeline_from_map` does the reverse, so a fitted map is saved with ``ThetaMap.save`` and
+  read by ``surrogate.theta.load(path)`` unchanged.
+
+Inputs of the pipeline are rows [eta, n, sigma_y, H, W] (SI, lengths in metres, height before width),
+the order of the published map.
+"""
+from __future__ import annotations
+
+import numpy as np
+from sklearn.linear_model import Ridge, RidgeCV
+from sklearn.pipeline import Pipeline
+from sklearn.preprocessing import FunctionTransformer, PolynomialFeatures, StandardScaler
+
+from surrogate.theta import N_COEFFS, ThetaMap, base_features, monomial_powers, monomial_weights
+
+D0 = 0.025  # eq. 43
+ALPHAS = np.logspace(-6, 3, 28)
+
+
+# -- eq. 43 --------------------------------------------------------------------------------------------
+def matching_score(offsets, losses, normals, d0: float = D0) -> np.ndarray:
+    """Eq. 43 for landscape points ``offsets`` (k, 3) = M~ - M (normalised space) with ``losses`` (k,),
+    against candidate loss normals (..., 3): the exp(-d/d0)-weighted mean loss, d = |q . (M~ - M)|.
+
+    Points with a NaN loss (failed simulations) are left out.
+    """
+    offsets = np.asarray(offsets, dtype=float)
+    losses = np.asarray(losses, dtype=float)
+    ok = np.isfinite(losses)
+    if not np.any(ok):
+        raise ValueError("every loss value of the landscape is NaN")
+    q = np.asarray(normals, dtype=float)
+    d = np.abs(q @ offsets[ok].T)  # (..., k)
+    w = np.exp(-d / d0)
+    return np.sum(w * losses[ok], axis=-1) / np.sum(w, axis=-1)
+
+
+def best_match(offsets, losses, candidate_normals, d0: float = D0) -> tuple[int, np.ndarray]:
+    """(index of the best candidate, all scores) of the 1D search; NaN normals (no flow) never win."""
+    q = np.asarray(candidate_normals, dtype=float)
+    scores = np.full(q.shape[0], np.inf)
+    valid = np.all(np.isfinite(q), axis=-1)
+    if not np.any(valid):
+        raise ValueError("no candidate Poiseuille setup gives a loss normal")
+    scores[valid] = matching_score(offsets, losses, q[valid], d0)
+    return int(np.argmin(scores)), scores
+
+
+# -- the fit -------------------------------------------------------------------------------------------
+def features(x, sigma_eps: float = 1e-4) -> np.ndarray:
+    """The ten features of rows [eta, n, sigma_y, H, W] (SI): the five inputs and their reciprocals."""
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    if x.shape[-1] != 5:
+        raise ValueError(f"Theta inputs must be rows [eta, n, sigma_y, H, W], got shape {x.shape}")
+    return base_features(x[:, 0], x[:, 1], x[:, 2], x[:, 3], x[:, 4], sigma_eps)
+
+
+def inputs(params, width_mm, height_mm) -> np.ndarray:
+    """Rows [eta, n, sigma_y, H, W] (SI, metres) from materials (k, 3) and setups in mm."""
+    p = np.atleast_2d(np.asarray(params, dtype=float))
+    return np.column_stack([p, np.asarray(height_mm, float) * 1e-3, np.asarray(width_mm, float) * 1e-3])
+
+
+def make_pipeline(sigma_eps: float = 1e-4, alphas=ALPHAS) -> Pipeline:
+    """Reciprocal features -> degree-2 monomials -> standardisation -> ridge with cross-validated alpha."""
+    return Pipeline([
+        ("reciprocal", FunctionTransformer(features, kw_args={"sigma_eps": sigma_eps})),
+        ("poly", PolynomialFeatures(degree=2)),
+        ("scale", StandardScaler()),
+        ("ridge", RidgeCV(alphas=alphas)),
+    ])
+
+
+def _permutation(poly: PolynomialFeatures) -> np.ndarray:
+    cols = {tuple(p): i for i, p in enumerate(poly.powers_)}
+    return np.array([cols[tuple(p)] for p in monomial_powers()])
+
+
+def to_theta_map(pipe: Pipeline, name: str = "fitted", attribution: str = "", c_extent_pa=(5.0, 500.0),
+                 p_pa_per_m: float = 2500.0) -> ThetaMap:
+    """The 66 published-layout coefficients of a fitted pipeline (scaler folded into the linear model)."""
+    poly, scale, lin = pipe.named_steps["poly"], pipe.named_steps["scale"], pipe.named_steps["ridge"]
+    coef = np.asarray(lin.coef_, dtype=float).ravel() / scale.scale_
+    intercept = float(lin.intercept_) - float(coef @ scale.mean_)
+    perm = _permutation(poly)
+    theta = coef[perm] / monomial_weights()  # stored monomials carry weight 1/(e_i! e_j!)
+    theta[0] += intercept  # monomial 0 is the constant 1
+    eps = pipe.named_steps["reciprocal"].kw_args["sigma_eps"]
+    return ThetaMap(theta, name=name, attribution=attribution, sigma_eps=eps, c_extent_pa=tuple(c_extent_pa),
+                    p_pa_per_m=p_pa_per_m)
+
+
+def pipeline_from_map(theta: ThetaMap) -> Pipeline:
+    """A fitted-looking pipeline whose predictions are ``theta.rate`` (identity scaler, fixed coefficients)."""
+    pipe = Pipeline([
+        ("reciprocal", FunctionTransformer(features, kw_args={"sigma_eps": theta.sigma_eps})),
+        ("poly", PolynomialFeatures(degree=2)),
+        ("scale", StandardScaler()),
+        ("ridge", Ridge()),
+    ])
+    poly = pipe.named_steps["poly"].fit(np.ones((1, 10)))
+    scale = pipe.named_steps["scale"]
+    scale.mean_, scale.scale_, scale.var_ = np.zeros(N_COEFFS), np.ones(N_COEFFS), np.ones(N_COEFFS)
+    scale.n_features_in_, scale.n_samples_seen_ = N_COEFFS, 1
+    coef = np.empty(N_COEFFS)
+    coef[_permutation(poly)] = np.asarray(theta.theta) * monomial_weights()
+    lin = pipe.named_steps["ridge"]
+    lin.coef_, lin.intercept_, lin.n_features_in_ = coef, 0.0, N_COEFFS
+    pipe.named_steps["reciprocal"].fit(np.ones((1, 5)))
+    return pipe
+
+
+def rate_of_stress(c_pa, c_extent_pa=(5.0, 500.0)) -> np.ndarray:
+    """r = (C - C_lo) / (C_hi - C_lo): the target of the fit for wall shear stresses C = P L [Pa]."""
+    lo, hi = c_extent_pa
+    return (np.asarray(c_pa, dtype=float) - lo) / (hi - lo)
+
+
+def fit(x, c_pa, sigma_eps: float = 1e-4, c_extent_pa=(5.0, 500.0)) -> tuple[Pipeline, dict]:
+    """Fit Theta to inputs ``x`` (k, 5) and best-matching wall stresses ``c_pa`` (k,).
+
+    Returns the pipeline and a summary: alpha, the leave-one-out RMS error of the rate and of C [Pa].
+    """
+    x = np.atleast_2d(np.asarray(x, dtype=float))
+    y = rate_of_stress(c_pa, c_extent_pa)
+    if len(x) != len(y) or len(x) < 3:
+        raise ValueError(f"need at least 3 matched landscapes with inputs and targets, got {len(x)} and {len(y)}")
+    pipe = make_pipeline(sigma_eps)
+    lin = pipe.named_steps["ridge"]
+    lin.set_params(store_cv_results=True) if "store_cv_results" in lin.get_params() else lin.set_params(store_cv_values=True)
+    pipe.fit(x, y)
+    cv = getattr(lin, "cv_results_", None)
+    if cv is None:
+        cv = lin.cv_values_
+    loo = np.asarray(cv)[:, list(lin.alphas).index(lin.alpha_)] if np.ndim(cv) == 2 else np.asarray(cv).ravel()
+    rms_rate = float(np.sqrt(np.mean(loo)))
+    span = c_extent_pa[1] - c_extent_pa[0]
+    return pipe, {"alpha": float(lin.alpha_), "loo_rms_rate": rms_rate, "loo_rms_C_Pa": rms_rate * span,
+                  "samples": int(len(y)), "target_rms_C_Pa": float(np.std(y) * span)}

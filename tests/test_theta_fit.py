@@ -1,0 +1,90 @@
+"""Theta fitting: published-layout round trip, the matching score of eq. 43, bad maps."""
+import json
+
+import numpy as np
+import pytest
+
+from studies.cli import main
+from studies.landscapes import grid_offsets
+from surrogate import theta_fit as F
+from surrogate.theta import ThetaMap, load
+
+
+def _inputs(k=200, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.column_stack([rng.uniform(0.05, 30, k), rng.uniform(0.3, 1, k), rng.uniform(0, 40, k),
+                            rng.uniform(0.02, 0.07, k), rng.uniform(0.02, 0.07, k)])
+
+
+def test_pipeline_reproduces_the_published_map():
+    ref = load("reference")
+    x = _inputs()
+    pipe = F.pipeline_from_map(ref)
+    expected = ref.rate(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
+    np.testing.assert_allclose(pipe.predict(x), expected, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(F.to_theta_map(pipe).theta, ref.theta)  # format round trip
+
+
+def test_fitted_pipeline_saves_in_the_published_layout(tmp_path):
+    ref = load("reference")
+    x = _inputs(120, seed=2)
+    c = ref.wall_stress(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
+    pipe, summary = F.fit(x, c)
+    assert summary["samples"] == 120 and summary["alpha"] > 0
+    path = F.to_theta_map(pipe, name="mine").save(tmp_path / "theta.json")
+    mine = load(path)
+    assert mine.name == "mine"
+    rate = mine.rate(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
+    np.testing.assert_allclose(rate, pipe.predict(x), rtol=1e-8, atol=1e-10)
+
+
+def _unit(v):
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def test_matching_score_is_minimal_at_the_true_normal():
+    q_true = _unit([0.3, -0.8, 0.5])
+    offsets = grid_offsets(7, 0.1)
+    # a thin valley: steep across the plane q . dM = 0, shallow along it
+    losses = (offsets @ q_true) ** 2 + 0.01 * np.sum(offsets**2, axis=1)
+    t = np.linspace(-1.0, 1.0, 201)  # a 1D family of candidate normals passing through q_true at t = 0
+    tilt = _unit(np.cross(q_true, [1.0, 0.0, 0.0]))
+    candidates = _unit(q_true[None] + t[:, None] * tilt[None])
+    best, scores = F.best_match(offsets, losses, candidates)
+    assert best == 100
+    assert np.all(np.diff(scores[100:]) > 0) and np.all(np.diff(scores[:101]) < 0)
+    rng = np.random.default_rng(0)
+    others = _unit(rng.normal(size=(500, 3)))
+    assert F.matching_score(offsets, losses, q_true) < np.min(F.matching_score(offsets, losses, others))
+    # NaN normals (no Poiseuille flow) never win; NaN losses are ignored
+    cand = np.vstack([np.full(3, np.nan), q_true])
+    assert F.best_match(offsets, np.where(np.arange(len(losses)) == 3, np.nan, losses), cand)[0] == 1
+
+
+def test_theta_map_with_wrong_coefficient_count_exits_2(tmp_path, capsys):
+    d = load("reference").to_dict()
+    d["theta"] = d["theta"][:-1]
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="66"):
+        load(bad)
+    assert main(["design", "--material", "3,0.7,1", "--done", "29x59", "--theta", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "66" in err
+
+
+def test_design_uses_a_fitted_map_file(tmp_path, capsys):
+    path = load("reference").save(tmp_path / "same.json")
+    assert main(["design", "--material", "3.14,0.74,1.24", "--done", "29x59", "--theta", str(path), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["next"] == {"width_mm": 32.0, "height_mm": 20.0}
+
+
+def test_packaged_fitted_map_loads_and_designs(capsys):
+    fitted = load("fitted")
+    assert isinstance(fitted, ThetaMap) and fitted.name == "fitted" and fitted.theta.shape == (66,)
+    assert not np.array_equal(fitted.theta, load("reference").theta)
+    assert main(["design", "--material", "9.82,0.705,12.9", "--done", "64x37", "--theta", "fitted", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["theta"] == "fitted" and 20 <= out["next"]["width_mm"] <= 70
