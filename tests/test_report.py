@@ -13,7 +13,7 @@ import pytest
 from studies.cli import main
 
 TESTS = Path(__file__).resolve().parent
-ENV = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}")
+ENV = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
 
 
 def _cli(*argv):
@@ -24,8 +24,7 @@ def _cli(*argv):
 @pytest.fixture(scope="module")
 def reported(tmp_path_factory):
     run = tmp_path_factory.mktemp("report") / "demo"
-    proc = _cli("demo", "--out", str(run), "--generations", "3", "--workers", "0", "--quiet",
-                "--simulator", "fake_forward:simulate")
+    proc = _cli("demo", "--out", str(run), "--generations", "3", "--workers", "0", "--quiet")
     assert proc.returncode == 0, proc.stderr
     proc = _cli("report", str(run), "--workers", "0", "--new-simulations", "8", "--min-ess", "300",
                 "--no-discretisation", "--quiet")

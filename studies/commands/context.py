@@ -73,8 +73,8 @@ def add_preset_option(p: argparse.ArgumentParser, default: str) -> None:
                    "costs in the user guide)")
 
 
-def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None) -> None:
-    """``--out --store --workers --scheduler --generations --seed --quiet`` with their help texts."""
+def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None, generations: bool = True) -> None:
+    """``--out --store --workers --scheduler [--generations] --quiet`` with their help texts."""
     if default_out is None:
         p.add_argument("--out", required=True, metavar="OUT",
                        help="output folder (result.json, flow_curve.png, overlays/)")
@@ -87,14 +87,15 @@ def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None) -> N
                    help="local worker processes (default: one per CPU core; 0: in this process)")
     p.add_argument("--scheduler", default=None, metavar="ADDR",
                    help="dask.distributed scheduler address, e.g. tcp://host:8786 (instead of --workers)")
-    p.add_argument("--generations", type=integer, default=None, metavar="N",
-                   help="CMA-ES generations per stage (default: the preset's)")
+    if generations:
+        p.add_argument("--generations", type=integer, default=None, metavar="N",
+                       help="CMA-ES generations per stage (default: the preset's)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
 def check_run_options(args) -> None:
     """The project's own messages for out-of-range numbers and paths of the wrong kind."""
-    if args.generations is not None and args.generations < 1:
+    if getattr(args, "generations", None) is not None and args.generations < 1:
         raise ValueError(f"--generations {args.generations} must be >= 1")
     if args.workers is not None and args.workers < 0:
         raise ValueError(f"--workers {args.workers} must be >= 0 (0: simulate in this process)")
