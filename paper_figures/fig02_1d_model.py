@@ -2,7 +2,7 @@
 
 Strain rate 10 1/s, mu = 1e3 Pa. Each panel changes the base material (top left); dashed lines mark
 the terminal stress (eq. 7), the dotted line the yield time plus the transition time t_inf (eq. 8).
-Usage: python -m paper_figures.fig02_1d_model [OUT.png]
+Usage: python -m paper_figures.fig02_1d_model [OUT.png]; ``make(out_dir)`` for ``virheo figures``.
 """
 
 import sys
@@ -37,6 +37,11 @@ def main(out: str = "docs/figures/fig02_1d_model.png") -> Path:
         ax.set_title(f"eta={eta:g}, n={n:g}, sigma_y={sy:g}", fontsize=9)
         ax.set_ylim(bottom=0)
     return finish_stress_grid(fig, axes, out, "stress (Pa)")
+
+
+def make(out_dir, quick: bool = False, **_) -> list[Path]:
+    """Write fig02_1d_model.png into ``out_dir`` (no simulation: quick and full are the same)."""
+    return [main(Path(out_dir) / "fig02_1d_model.png")]
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Paper Fig. 5: eq.-14 shear stress vs time in 3D simple shear (gamma_dot = 10 1/s), the paper's flow
 rule (purple) against Yue et al. 2015 (red); dashed: eq. 7, dotted red: the Yue closed form
 (mpm.shear.terminal_shear_stress). Same materials as Fig. 2.
-Usage: python -m paper_figures.fig05_simple_shear [OUT.png]
+Usage: python -m paper_figures.fig05_simple_shear [OUT.png]; ``make(out_dir)`` for ``virheo figures``.
 """
 
 import sys
@@ -32,6 +32,11 @@ def main(out: str = "docs/figures/fig05_simple_shear.png") -> Path:
         ax.set_title(f"eta={eta[i]:g}, n={n[i]:g}, sigma_y={sy[i]:g}", fontsize=9)
         ax.set_ylim(bottom=0)
     return finish_stress_grid(fig, axes, out, "shear stress (Pa), eq. 14")
+
+
+def make(out_dir, quick: bool = False, **_) -> list[Path]:
+    """Write fig05_simple_shear.png into ``out_dir`` (no simulation: quick and full are the same)."""
+    return [main(Path(out_dir) / "fig05_simple_shear.png")]
 
 
 if __name__ == "__main__":

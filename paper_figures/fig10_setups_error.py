@@ -1,0 +1,78 @@
+"""Paper Fig. 10: relative error vs simulation count, one setup vs two setups, and the flow curves.
+
+Runs the section 7.1 emulation study (``studies.emulation.run_study``; resumable through the store) and plots,
+per case, E_rel (eq. of section 7.1) of the best candidate so far against the simulation count: black the
+single setup, orange the first setup of the two-setup run, blue its second stage; right, the flow curves
+(eq. 1) of the final estimates and the ground truth (dotted).
+Quick: one material, one run, 2 generations per stage on the 5 mm model; full: the paper's budget of 100
+generations per stage over 6 materials x 3 runs (the figure shows the first three cases).
+Usage: python -m paper_figures.fig10_setups_error [OUT_DIR] [--quick]
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from paper_figures._plot import Context, flow_curves, pyplot
+from studies.report import save_figure, write_json
+
+# (materials, runs, generations per stage, cases shown)
+SETTINGS = {True: (1, 1, 2, 1), False: (6, 3, 100, 3)}
+GOOD = 0.1
+
+
+def quick_preset_name() -> str:
+    from similarity import estimate as E
+
+    for name in ("quick", "coarse"):
+        if name in E.PRESETS:
+            return name
+    return next(iter(E.PRESETS))
+
+
+def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
+    from similarity.space import e_rel
+    from studies.emulation import run_study, summary
+
+    context = context or Context()
+    store = context.resolved_store(out_dir)
+    materials, runs, generations, shown = SETTINGS[quick]
+    cases = run_study(materials=materials, runs=runs, preset=quick_preset_name(), generations=generations,
+                      store=store, executor=context.executor)
+    write_json(Path(out_dir) / "fig10_emulation.json",
+               {"summary": summary(cases), "generations": generations, "cases": [c.to_dict() for c in cases]})
+    plt = pyplot()
+    cases_shown = cases[:shown]
+    fig, axes = plt.subplots(len(cases_shown), 2, figsize=(10, 3.2 * len(cases_shown)), dpi=90, squeeze=False)
+    for (ax, ax_flow), c in zip(axes, cases_shown):
+        curves = c.curves()
+        for key, colour, label, lw in (("single", "k", "one setup", 2.5), ("first", "tab:orange", "setup 1", 1.5),
+                                       ("second", "tab:blue", "setups 1+2", 1.5)):
+            if curves[key]:
+                x, y = zip(*curves[key])
+                ax.plot(x, y, color=colour, lw=lw, label=label, zorder=2 if key == "single" else 3)
+        ax.axhline(GOOD, color="grey", ls=":", lw=1)
+        ax.set_yscale("log")
+        ax.set_xlabel("simulation count", fontsize=8)
+        ax.set_ylabel("E_rel", fontsize=8)
+        t = c.truth
+        ax.set_title(f"truth eta={t.eta:.3g}, n={t.n:.3g}, sigma_y={t.sigma_y:.3g}; setups "
+                     f"{' + '.join(c.double.setups)} mm", fontsize=8)
+        ax.legend(fontsize=7)
+        ax.tick_params(labelsize=7)
+        flow_curves(ax_flow, [
+            (f"one setup (E_rel {e_rel(t, c.single.material):.3f})", c.single.material, {"color": "k", "lw": 2}),
+            (f"two setups (E_rel {e_rel(t, c.double.material):.3f})", c.double.material,
+             {"color": "tab:blue", "lw": 1.5}),
+            ("ground truth", t, {"color": "grey", "ls": ":", "lw": 2}),
+        ])
+        ax_flow.legend(fontsize=7, loc="upper left")
+    s = summary(cases)
+    fig.suptitle(f"{len(cases)} case(s), {generations} generations per stage: good (E_rel <= {GOOD}) with one setup "
+                 f"{s['good_single']}/{s['cases']}, with two setups {s['good_two_setups']}/{s['cases']}", fontsize=9)
+    return [save_figure(fig, Path(out_dir) / "fig10_setups_error.png")]
+
+
+if __name__ == "__main__":
+    args = [a for a in sys.argv[1:] if a != "--quick"]
+    print(make(args[0] if args else "docs/figures", quick="--quick" in sys.argv)[0])
