@@ -27,10 +27,8 @@ DISCRETISATION = {True: (5.0, None), False: (1.26, 2)}  # quick / full: (cell mm
 
 def rheometer_module():
     """The rheometer reader and Herschel-Bulkley fit (``fit_herschel_bulkley``, ``read_flow_curve``, ...)."""
-    try:
-        from surrogate import rheometer
-    except ImportError:
-        from studies import rheometer
+    from surrogate import rheometer
+
     return rheometer
 
 

@@ -260,7 +260,7 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     folder = Path(folder)
     result, estimate = read_result(folder)
     path = folder / "result.json"
-    preset = get_preset(result.get("preset", "quick"))
+    preset = get_preset(result.get("preset", "demo"))
     simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
     store = store if store is not None else Store(folder / "store")
     setups = [Setup.parse(s) for s in result.get("setups", [])]
