@@ -8,6 +8,7 @@ how far the new results are from the old (silhouette IoU through ``Camera.defaul
 
     python bench/bench_solver_speed.py                         # 30 x 20 mm at 1.5 and 5 mm, 2 rounds
     python bench/bench_solver_speed.py --cells 1.5 --rounds 3 --base main~3
+    python bench/bench_solver_speed.py --dim 2 --cells 0.75 2    # plane strain
 """
 import argparse
 import os
@@ -52,6 +53,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cells", type=float, nargs="+", default=[1.5, 5.0], help="cell widths in mm")
     ap.add_argument("--setup", default="30x20", help="W x H in mm")
     ap.add_argument("--material", default="1,0.8,5", help="eta,n,sigma_y (Pa s^n, -, Pa)")
+    ap.add_argument("--dim", type=int, default=3, help="3, or 2 for plane strain")
     ap.add_argument("--rounds", type=int, default=2, help="old/new pairs per cell width")
     a = ap.parse_args(argv)
     w, h = (float(v) for v in a.setup.lower().split("x"))
@@ -68,11 +70,11 @@ def main(argv=None) -> int:
 
     cam = Camera.default()
     solvers = (("old", mpm_base.simulate), ("new", mpm.simulate))
-    print(f"# old = {a.base} ({commit}), new = this checkout; one thread; material {a.material}, setup {a.setup} mm, "
+    print(f"# old = {a.base} ({commit}), new = this checkout; one thread; {a.dim}D; material {a.material}, setup {a.setup} mm, "
           f"density 1000; load {os.getloadavg()[0]:.1f}")
     for name, sim in solvers:  # compile or load the kernels outside the timings
         t = time.perf_counter()
-        sim(material, setup, density=1000.0, cell_mm=6.0)
+        sim(material, setup, density=1000.0, cell_mm=6.0, dim=a.dim)
         print(f"# {name}: first call (kernels compiled or loaded from the cache) {time.perf_counter() - t:.1f} s",
               flush=True)
     print(f"{'cell mm':>7} {'run':>4} {'particles':>9} {'steps':>5} {'cpu s':>7} {'wall s':>7} {'Mpstep/cpu-s':>12}")
@@ -82,7 +84,7 @@ def main(argv=None) -> int:
         for _ in range(a.rounds):
             for name, sim in solvers:
                 c0 = time.process_time()
-                s = sim(material, setup, density=1000.0, cell_mm=cell, camera=cam)
+                s = sim(material, setup, density=1000.0, cell_mm=cell, camera=cam, dim=a.dim)
                 cpu = time.process_time() - c0 - s.stats["render_s"]
                 ps = s.stats["n_particles"] * s.stats["steps"]
                 rates[name].append(ps / cpu / 1e6)
