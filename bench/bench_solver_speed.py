@@ -3,7 +3,7 @@
 The old solver is the ``mpm`` package of a git revision (default ``main``), extracted with ``git archive``
 into a temporary package ``mpm_base``; the new one is this checkout's ``mpm``. Both run the same
 evaluations alternately (so that the load of a shared machine hits both alike) and the script prints
-particle-steps per CPU-second (process CPU time of the simulation, rendering excluded), their ratio, and
+particle-steps per CPU-second (process CPU time of the simulation; silhouettes rendered afterwards), their ratio, and
 how far the new results are from the old (silhouette IoU through ``Camera.default()``, runout):
 
     python bench/bench_solver_speed.py                         # 30 x 20 mm at 1.5 and 5 mm, 2 rounds
@@ -67,6 +67,7 @@ def main(argv=None) -> int:
     import mpm_base  # noqa: E402
     from mpm.camera import Camera  # noqa: E402
     from mpm.loss import iou  # noqa: E402
+    from mpm.silhouette import render  # noqa: E402
 
     cam = Camera.default()
     solvers = (("old", mpm_base.simulate), ("new", mpm.simulate))
@@ -84,14 +85,15 @@ def main(argv=None) -> int:
         for _ in range(a.rounds):
             for name, sim in solvers:
                 c0 = time.process_time()
-                s = sim(material, setup, density=1000.0, cell_mm=cell, camera=cam, dim=a.dim)
-                cpu = time.process_time() - c0 - s.stats["render_s"]
+                s = sim(material, setup, density=1000.0, cell_mm=cell, dim=a.dim)  # no camera: simulation only
+                cpu = time.process_time() - c0
                 ps = s.stats["n_particles"] * s.stats["steps"]
                 rates[name].append(ps / cpu / 1e6)
                 last[name] = s
                 print(f"{cell:7.2f} {name:>4} {s.stats['n_particles']:9d} {s.stats['steps']:5d} {cpu:7.2f} "
                       f"{s.stats['wall_s']:7.2f} {ps / cpu / 1e6:12.3f}", flush=True)
-        ious = [iou(x, y) for x, y in zip(last["old"].silhouettes, last["new"].silhouettes)]
+        sil = {k: [render(f, cam, spacing_m=v.stats["spacing_m"]) for f in v.frames] for k, v in last.items()}
+        ious = [iou(x, y) for x, y in zip(sil["old"], sil["new"])]
         df = np.abs(last["old"].front_m - last["new"].front_m).max() * 1e3
         ratio = np.median(rates["new"]) / np.median(rates["old"])
         print(f"# cell {cell:g} mm: median Mpstep/cpu-s old {np.median(rates['old']):.3f}, new "
