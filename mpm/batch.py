@@ -52,7 +52,8 @@ def request_for(material, setup, *, density: float, depth_mm: float = 40.0, came
         width_mm=float(setup.width_mm), height_mm=float(setup.height_mm), density=float(density),
         depth_mm=float(depth_mm), camera=camera_json(camera),
         cell_mm=None if cell_mm is None else float(cell_mm), ppc=None if ppc is None else int(ppc),
-        slip_length_m=None if slip_length_m is None else float(slip_length_m), dim=int(dim), flow_rule=str(flow_rule),
+        slip_length_m=None if slip_length_m is None else float(slip_length_m),
+        dim=int(dim), flow_rule=str(flow_rule),
         precision=str(precision), image_size=tuple(int(v) for v in image_size),
         simulator=simulator, code_version=code_version(simulator),
     )
