@@ -71,7 +71,8 @@ def main(argv=None) -> int:
 
     cam = Camera.default()
     solvers = (("old", mpm_base.simulate), ("new", mpm.simulate))
-    print(f"# old = {a.base} ({commit}), new = this checkout; one thread; {a.dim}D; material {a.material}, setup {a.setup} mm, "
+    print(f"# old = {a.base} ({commit}), new = this checkout; one thread; {a.dim}D; material {a.material}, "
+          f"setup {a.setup} mm, "
           f"density 1000; load {os.getloadavg()[0]:.1f}")
     for name, sim in solvers:  # compile or load the kernels outside the timings
         t = time.perf_counter()

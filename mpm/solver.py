@@ -130,7 +130,8 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     stats.update(
         setup_s=t_ready - t_start, sim_s=t_sim - t_ready, render_s=t_end - t_sim, wall_s=t_end - t_start,
         cpu_s=time.process_time() - cpu_start,
-        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, dim=dim, precision=precision, flow_rule=flow_rule,
+        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, dim=dim, precision=precision,
+        flow_rule=flow_rule,
         arch=runtime.arch_name(), tasks=eng.tasks,
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)
