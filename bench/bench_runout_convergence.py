@@ -2,7 +2,7 @@
 discretisations (cell width, particles per cell per axis, CFL), 2D plane strain by default.
 
     python bench/bench_runout_convergence.py [--dim 2|3] [--material ETA,N,SIGMA_Y] [--setup WxH]
-                                             [--density RHO] [--runs CELL,PPC[,CFL] ...]
+                                             [--density RHO] [--slip-m B] [--runs CELL,PPC[,CFL] ...]
 
 Defaults: the thickened Worcestershire sauce at Table 1 (0.55, 0.81, 1.95) in its setup 1 (21 x 40 mm,
 1200 kg/m^3), the runniest flow of the shared footage. Prints a markdown table (docs/method/forward-model.md records it):
@@ -29,12 +29,14 @@ def main(argv=None) -> int:
     p.add_argument("--material", default="0.55,0.81,1.95")
     p.add_argument("--setup", default="21x40")
     p.add_argument("--density", type=float, default=1200.0)
+    p.add_argument("--slip-m", type=float, default=0.0, help="Navier slip length of floor and walls, metres")
     p.add_argument("--runs", nargs="*", default=list(DEFAULT_RUNS), help="CELL_MM,PPC[,CFL] (default CFL: the solver's)")
     args = p.parse_args(argv)
     material = Material.parse(args.material)
     setup = Setup.parse(args.setup)
     default_cfl = solver.CFL
-    print(f"# {args.dim}D, material {args.material}, setup {args.setup} mm, density {args.density:g} kg/m^3")
+    print(f"# {args.dim}D, material {args.material}, setup {args.setup} mm, density {args.density:g} kg/m^3, "
+          f"slip length {args.slip_m * 1e3:g} mm")
     print("\n| cell mm | ppc | spacing mm | CFL | front per frame (mm) | final front mm | steps | wall s |")
     print("|---:|---:|---:|---:|---|---:|---:|---:|")
     for run in args.runs:
@@ -42,7 +44,8 @@ def main(argv=None) -> int:
         cell, ppc = float(parts[0]), int(parts[1])
         solver.CFL = float(parts[2]) if len(parts) > 2 else default_cfl
         t = time.perf_counter()
-        sim = mpm.simulate(material, setup, density=args.density, cell_mm=cell, ppc=ppc, dim=args.dim)
+        sim = mpm.simulate(material, setup, density=args.density, cell_mm=cell, ppc=ppc, dim=args.dim,
+                           slip_length_m=args.slip_m)
         front = np.round(sim.front_m * 1e3, 1)
         print(f"| {cell:g} | {ppc} | {cell / ppc:.3g} | {solver.CFL:g} | {' '.join(f'{f:g}' for f in front)} | "
               f"**{front[-1]:g}** | {sim.stats.get('steps', '')} | {time.perf_counter() - t:.1f} |", flush=True)

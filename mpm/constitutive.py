@@ -17,6 +17,8 @@ from mpm import runtime
 from mpm.params import FLOW_RULES, check_flow_rule
 
 NEWTON_ITERATIONS = 8
+CBRT_ITERATIONS = 64  # cap of the Halley cube root (it doubles or halves per iteration far from the root)
+CBRT_TOL = 1e-5  # relative change at which the cube root stops (error left ~ CBRT_TOL^3)
 NEWTON_TOL = 1e-6  # early exit of the Taichi solve once a Newton step in log(e) is below this
 SQRT2 = float(np.sqrt(2.0))
 SQRT2_3 = float(np.sqrt(2.0 / 3.0))
@@ -179,8 +181,22 @@ _COEFFICIENTS = {y: (r.alpha, r.beta, r.c) for y, r in ((False, _RULES["paper"])
 
 @ti.func
 def _ti_cbrt(x):
-    """x^(1/3) for x > 0, in the dtype of x (a literal 1/3 would be rounded to default_fp)."""
-    return ti.exp(ti.log(x) / 3)
+    """x^(1/3) for x > 0, in the dtype of x: Halley's iteration y <- y (y^3 + 2x) / (2y^3 + x) from y = 1.
+
+    It converges cubically, and the arguments here (determinants of b_e and their ratios) lie close to 1,
+    so two or three iterations (a few multiplications and one division each) replace exp(log(x)/3).
+    Far from 1 it doubles or halves y per iteration until it gets close. It stops once the relative change
+    is below CBRT_TOL: the error left is then of the order CBRT_TOL^3, below f64 resolution.
+    """
+    y = x * 0 + 1
+    for _ in range(CBRT_ITERATIONS):
+        y3 = y * y * y
+        y_new = y * (y3 + 2 * x) / (2 * y3 + x)
+        small = ti.abs(y_new - y) <= CBRT_TOL * y_new
+        y = y_new
+        if small:
+            break
+    return y
 
 
 @ti.func
@@ -204,12 +220,15 @@ def _ti_solve_excess(e_trial, a, eta, n):
     p = 1.0 / n
     s = log_t
     for _ in range(NEWTON_ITERATIONS):
-        v = log_a + p * s
-        m = ti.max(s, v)
-        wu = ti.exp(s - m)
-        wv = ti.exp(v - m)
-        g = m + ti.log(wu + wv) - log_t
-        step = g * (wu + wv) / (wu + p * wv)
+        # G(s) = log(e^s + e^v) - log_t with v = log_a + p s; with d = v - s and r = e^-|d| <= 1:
+        # G = max(s, v) + log(1 + r) - log_t, G' = (1 + p r)/(1 + r) (d <= 0) or (r + p)/(1 + r)
+        d = log_a + (p - 1.0) * s
+        r = ti.exp(-ti.abs(d))
+        g = ti.max(s, s + d) + ti.log(1.0 + r) - log_t
+        slope = (1.0 + p * r) / (1.0 + r)
+        if d > 0:
+            slope = (r + p) / (1.0 + r)
+        step = g / slope
         s -= step
         if ti.abs(step) < NEWTON_TOL:  # quadratic convergence: the remaining error is ~step^2
             break

@@ -3,7 +3,10 @@
 One ``step`` launch advances the dam-break by one time step (paper section 4, appendix B):
 1. P2G: grid momentum += w m (v + C (x_i - x_p)) - dt V_p tau grad w, grid mass += w m (uGIMP weights,
    APIC transfer, Kirchhoff stress of ``mpm.constitutive.kirchhoff_stress``, initial particle volume V_p).
-2. Grid: p += dt m g; nodes inside a wall box get p = 0 (sticking); v_i = p / m.
+2. Grid: p += dt m g; nodes inside a wall box get p = 0 (sticking); v_i = p / m. With a slip length
+   b > 0 a second pass gives the wall nodes the tangential velocity of the Navier law u_s = b du/dn,
+   fitted through the first node outside the wall (docs/performance.md, "Wall slip").
+With one thread all the steps up to the next time-step update run in one launch (a serial loop).
 3. G2P: v_p = sum w v_i, C_p = sum v_i (x) grad w, elastic predictor b* = F b F^T with F = I + dt C
    (eq. 52), plastic correction ``mpm.constitutive.return_mapping`` (eq. 57); particles inside a wall box
    are frozen (v = 0, C = 0); advection x += dt v.
@@ -20,6 +23,10 @@ from mpm import runtime
 # layout of the small int32 control array ``win``
 OX, NX, COUNT, OVERFLOW, ERROR, DONE, NEED = 0, 3, 6, 7, 8, 9, 10
 HIDDEN, PLASTIC, FROZEN = 1, 2, 4  # particle flag bits
+# walls (boxes of ``mpm.scene.DamBreak.boxes``, in that order): (normal axis, normal sign, face of the box
+# that is the wall plane); in 2D only the floor and the back wall exist
+WALL_NORMALS = ((1, 1, 1), (0, 1, 1), (2, 1, 1), (2, -1, 0))
+N_WALLS = {2: 2, 3: 4}
 ERRORS = {1: "a particle position became NaN", 2: "particles left the region the flow can reach"}
 
 _ENGINES: dict = {}
@@ -35,9 +42,11 @@ class Engine:
         # GPU: atomics and one grid copy; $VIRHEO_MPM_ATOMIC=1 forces that path on the CPU (for testing)
         self.atomic = not runtime.on_cpu() or os.environ.get("VIRHEO_MPM_ATOMIC") == "1"
         self.tasks = 1 if self.atomic else runtime.threads()
+        self.serial = self.tasks == 1 and not self.atomic  # all steps of a call in one launch
         self.step, self.init_bbox, self.grid_mass = build_kernels(dim, self.tasks, self.atomic)
         self.cap_p = 0
         self.cap_g = 0
+        self.warm = False  # True once every kernel has run (compiled or loaded from the cache)
         self.win = ti.ndarray(ti.i32, 16)
         self.acc = ti.ndarray(ti.i32, (self.tasks, 6))
         self.accf = ti.ndarray(self.dtype, self.tasks)
@@ -85,6 +94,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
 
     D = dim
     nd = ti.types.ndarray()
+    serial = tasks == 1 and not atomic
 
     @ti.func
     def ugimp(X, l):
@@ -247,11 +257,60 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         C[p] = B
         return xn, vp
 
-    @ti.kernel
-    def step(x: nd, v: nd, C: nd, be: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd, boxes: nd,
-             lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float, kappa: float,
-             mu: float, eta: float, nn: float, sy: float, gravity: float, zmid: float,
-             lh: float, yue: ti.template()):
+    @ti.func
+    def navier_slip(i, grid: ti.template(), win: ti.template(), boxes: ti.template(), dx, inv_dx, zmid, slip):
+        """Tangential velocity of wall node i from the Navier slip law with slip length ``slip`` (m).
+
+        The velocity profile u(s) = gamma (b + s) (s: signed distance from the wall plane, > 0 in the
+        material, b the slip length; it vanishes at s = -b) is fitted through the first node outside
+        every wall along the wall normal, at s_f: u(s) = u_f max(b + s, 0) / (b + s_f). The normal
+        velocity is zero. Nodes in two walls (edges, corners) and nodes without a free neighbour stick.
+        """
+        origin, stride = window(win)
+        local = ti.Vector.zero(ti.i32, D)
+        rest = i
+        for a in ti.static(range(D - 1, -1, -1)):
+            local[a] = rest % win[NX + a]
+            rest = rest // win[NX + a]
+        pos = ti.Vector([(local[a] + origin[a]) * dx for a in ti.static(range(D))])
+        z = zcoord(pos, zmid)
+        inside = 0
+        wall = -1
+        for b in ti.static(range(4)):
+            in_xy, in_z = in_box(boxes, b, pos, z)
+            if in_xy and in_z:
+                inside += 1
+                wall = b
+        vel = ti.Vector.zero(float, D)
+        if inside == 1:
+            for b in ti.static(range(N_WALLS[D])):
+                if wall == b:
+                    axis, sign, face = ti.static(WALL_NORMALS[b])
+                    s = sign * (pos[axis] - boxes[b, face, axis])  # <= 0: inside the wall
+                    k = ti.floor(-s * inv_dx, ti.i32) + 1  # nodes to the first one outside
+                    j = local[axis] + sign * k
+                    if 0 <= j < win[NX + axis]:
+                        fpos = pos
+                        fpos[axis] += sign * k * dx
+                        fz = zcoord(fpos, zmid)
+                        free = True
+                        for c in ti.static(range(4)):
+                            in_xy, in_z = in_box(boxes, c, fpos, fz)
+                            if in_xy and in_z:
+                                free = False
+                        if free:
+                            gf = grid[i + sign * k * stride[axis]]
+                            factor = ti.max(slip + s, 0.0) / (slip + s + k * dx)  # Navier profile
+                            for a in ti.static(range(D)):
+                                if a != axis:
+                                    vel[a] = gf[a] * factor
+        return inside, vel
+
+    @ti.func
+    def step_body(x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
+                  flags: ti.template(), grid: ti.template(), win: ti.template(), acc: ti.template(),
+                  accf: ti.template(), boxes: ti.template(), lim: ti.template(), n, capg, dt, dx, mp, vol,
+                  kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue: ti.template()):
         inv_dx = 1.0 / dx
         # 1. clear the previous window in every grid copy
         for i in range(win[COUNT]):
@@ -314,7 +373,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                     rest = rest // win[NX + a]
                 pos = ti.Vector([(local[a] + win[OX + a]) * dx for a in ti.static(range(D))])
                 mom = ti.Vector([g[a] for a in ti.static(range(D))])
-                mom[1] -= dt * m * gravity
+                mom += (dt * m) * body  # gravity (and any other body force)
                 z = zcoord(pos, zmid)
                 for b in ti.static(range(4)):
                     in_xy, in_z = in_box(boxes, b, pos, z)
@@ -324,6 +383,16 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 for a in ti.static(range(D)):
                     g[a] = vel[a]
             grid[i] = g
+        # 4b. walls with a slip length: tangential velocity of the wall nodes from the Navier law
+        for i in range(win[COUNT]):
+            if slip > 0 and win[OVERFLOW] == 0 and win[ERROR] == 0:
+                g = grid[i]
+                if g[D] > 0:
+                    inside, vel = navier_slip(i, grid, win, boxes, dx, inv_dx, zmid, slip)
+                    if inside > 0:
+                        for a in ti.static(range(D)):
+                            g[a] = vel[a]
+                        grid[i] = g
         # 5. G2P, constitutive update, walls, advection; bounding box and speed for the next step
         if ti.static(atomic):
             for p in range(n):
@@ -365,6 +434,20 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         for _ in range(1):
             if win[OVERFLOW] == 0 and win[ERROR] == 0:
                 win[DONE] += 1
+
+    @ti.kernel
+    def step(x: nd, v: nd, C: nd, be: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd, boxes: nd,
+             lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float, kappa: float,
+             mu: float, eta: float, nn: float, sy: float, body: ti.types.vector(D, float), zmid: float,
+             lh: float, slip: float, steps: ti.i32, yue: ti.template()):
+        if ti.static(serial):  # one thread: all ``steps`` steps in one launch, loops run in order
+            for _ in range(1):
+                for _s in range(steps):
+                    step_body(x, v, C, be, flags, grid, win, acc, accf, boxes, lim, n, capg, dt, dx, mp, vol,
+                              kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue)
+        else:  # parallel loops: one step per launch
+            step_body(x, v, C, be, flags, grid, win, acc, accf, boxes, lim, n, capg, dt, dx, mp, vol, kappa, mu,
+                      eta, nn, sy, body, zmid, lh, slip, yue)
 
     @ti.kernel
     def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, lh: float):

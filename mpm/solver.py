@@ -5,11 +5,15 @@ Default discretisation: one particle per cell per axis on 1.5 mm cells (the pape
 ppc=2``); time step from the CFL condition of the elastic wave speed plus the particle speed. ``dim=2`` is
 plane strain at mid-depth, its frames extruded over the depth. One simulation at a time per process.
 """
+import contextlib
 import math
+import sys
+import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+import taichi as ti
 
 from mpm import kernels as kn
 from mpm import runtime
@@ -19,6 +23,7 @@ from mpm.params import FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_
 DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/performance.md
 CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6-0.65 still stable, 0.8 blows up (docs/performance.md)
 PARTICLES_PER_CELL = 1  # per axis (the reference implementation uses 2; see docs/performance.md)
+SLIP_LENGTH_M = 0.0  # Navier slip length of floor and walls (0: sticking); measured: docs/performance.md
 SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame interval
 
 __all__ = ["simulate", "Simulation", "SimulationError", "DEFAULT_CELL_MM", "CFL", "PARTICLES_PER_CELL",
@@ -50,8 +55,48 @@ def _check_options(dim, flow_rule, precision, image_size):
     return image_size_of(image_size)
 
 
+def check_slip_length(b) -> float:
+    """The slip length as a float in metres; ValueError unless 0 <= b <= 1 m."""
+    try:
+        b = float(b)
+    except (TypeError, ValueError):
+        raise ValueError(f"slip length must be a number of metres, got {b!r}") from None
+    if not (math.isfinite(b) and 0.0 <= b <= 1.0):
+        raise ValueError(f"slip length must be within 0-1 m, got {b!r}")
+    return b
+
+
+COMPILE_NOTICE_S = 2.0  # a first launch still running after this long is compiling: say so on stderr
+_NOTICE = {"said": False}
+
+
+@contextlib.contextmanager
+def _compile_notice(eng):
+    """Tell the user (one line on stderr) when the first launch of ``eng``'s kernels takes long: that is
+    Taichi compiling them (first run on a machine, or after the solver changed; later processes load
+    them from Taichi's offline cache)."""
+    if eng.warm:
+        yield
+        return
+
+    def say():
+        if not _NOTICE["said"]:
+            _NOTICE["said"] = True
+            print("virheometry: compiling the simulation kernels (first run with this solver on this machine; "
+                  "about a minute, cached afterwards)...", file=sys.stderr, flush=True)
+
+    timer = threading.Timer(COMPILE_NOTICE_S, say)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
+
+
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
-             depth_mm=40.0, image_size=WORKING_SIZE, precision="f32", ppc=None, progress=None) -> Simulation:
+             depth_mm=40.0, image_size=WORKING_SIZE, precision="f32", ppc=None, slip_length_m=None,
+             progress=None) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
@@ -59,18 +104,21 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     ppc: particles per cell per axis (default ``PARTICLES_PER_CELL``; the paper's discretisation is
     cell_mm=1.26, ppc=2); depth_mm: distance between the side walls;
     camera: a ``mpm.camera.Camera`` to also render silhouettes at image_size = (width, height);
+    slip_length_m: Navier slip length b of floor and walls in metres (default ``SLIP_LENGTH_M``; 0 = sticking;
+    the tangential wall velocity is b times the wall-normal shear rate);
     precision: "f32" or "f64"; flow_rule: one of ``FLOW_RULES``; progress: optional callable
     ``progress(frames_done, 8)`` called after each simulated frame.
     Raises ValueError for bad input, SimulationError when the run blows up.
     """
     mat = Material.of(material)
     size = _check_options(dim, flow_rule, precision, image_size)
+    slip = check_slip_length(SLIP_LENGTH_M if slip_length_m is None else slip_length_m)
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
                               depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc)
     t_start, cpu_start = time.perf_counter(), time.process_time()
     eng = kn.engine(dim, precision)
     t_ready = time.perf_counter()
-    run = _Run(eng, scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015")
+    run = _Run(eng, scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip)
     frames3, front, stats = run.execute(progress)
     t_sim = time.perf_counter()
     silhouettes = None
@@ -82,7 +130,8 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     stats.update(
         setup_s=t_ready - t_start, sim_s=t_sim - t_ready, render_s=t_end - t_sim, wall_s=t_end - t_start,
         cpu_s=time.process_time() - cpu_start,
-        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, dim=dim, precision=precision, flow_rule=flow_rule,
+        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, dim=dim, precision=precision,
+        flow_rule=flow_rule,
         arch=runtime.arch_name(), tasks=eng.tasks,
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)
@@ -92,9 +141,14 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
 class _Run:
     """One simulation on an engine's buffers."""
 
-    def __init__(self, eng: kn.Engine, scene: sc.DamBreak, eta, n, sigma_y, yue: bool):
+    def __init__(self, eng: kn.Engine, scene: sc.DamBreak, eta, n, sigma_y, yue: bool, slip_m: float = 0.0,
+                 body=None):
         self.eng, self.scene = eng, scene
         self.eta, self.n, self.sigma_y, self.yue = eta, n, sigma_y, yue
+        self.slip_m = float(slip_m)
+        # body force per unit mass (m/s^2): gravity along -y unless given
+        body = (0.0, -scene.gravity, 0.0) if body is None else tuple(float(b) for b in body)
+        self.body = ti.Vector(list(body[:scene.dim]))
         pos = scene.particles()
         self.count = len(pos)
         eng.ensure_particles(self.count)
@@ -119,20 +173,28 @@ class _Run:
         eng.lim.from_numpy(lim)
         win = np.zeros(16, np.int32)
         eng.win.from_numpy(win)
-        eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m,
-                      scene.half_length_m / scene.cell_m)
+        with _compile_notice(eng):
+            eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m,
+                          scene.half_length_m / scene.cell_m)
         first = eng.acc.to_numpy()
         span = first[:, 3:3 + d].max(0) + 3 - first[:, :d].min(0)
         eng.ensure_grid(int(np.prod(span)) * 2)
         eng.grid.fill(0)  # the previous run leaves its last window behind
 
     def _launch(self, steps: int, dt: float) -> None:
+        eng = self.eng
+        per_launch = steps if eng.serial else 1
+        with _compile_notice(eng):
+            self._launch_steps(steps // per_launch, per_launch, dt)
+        eng.warm = True
+
+    def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
         eng, s = self.eng, self.scene
-        for _ in range(steps):
+        for _ in range(launches):
             eng.step(eng.x, eng.v, eng.C, eng.be, eng.flags, eng.grid, eng.win, eng.acc, eng.accf, eng.boxes,
                      eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass, s.particle_volume, s.kappa,
-                     s.mu, self.eta, self.n, self.sigma_y, s.gravity, s.plane_z_m,
-                     s.half_length_m / s.cell_m, self.yue)
+                     s.mu, self.eta, self.n, self.sigma_y, self.body, s.plane_z_m,
+                     s.half_length_m / s.cell_m, self.slip_m, per_launch, self.yue)
 
     def _advance(self, steps: int, dt: float) -> None:
         """Run ``steps`` steps of size dt, growing the grid whenever the window overflows it."""

@@ -96,6 +96,7 @@ class SimRequest:
     camera: str | None = None
     cell_mm: float | None = None
     ppc: int | None = None
+    slip_length_m: float | None = None  # Navier slip length of floor and walls (None: the solver's default)
     dim: int = 3
     flow_rule: str = "paper"
     precision: str = "f32"
