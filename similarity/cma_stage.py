@@ -39,7 +39,7 @@ class Stage:
     loss: float
     evaluations: int  # candidate evaluations (each costs len(setups) simulations)
     simulations: int
-    generations: int
+    generations: int  # budget spent, in generations of POPSIZE draws (what the progress bar counts)
     cell_mm: float  # discretisation of the stage's forward model
     ppc: int
     history: list[dict] = field(default_factory=list)  # per generation: simulations, best loss, best x, ...
@@ -48,6 +48,7 @@ class Stage:
     archive: list[list[float]] = field(default_factory=list)  # every finite evaluation: [x0, x1, x2, loss]
     screened: list[list[float]] = field(default_factory=list)  # warm start: [x0, x1, x2, loss on these setups]
     finish: bool = False  # the coarse-to-fine finishing stage
+    cma_iterations: int = 0  # CMA-ES iterations over all restarts (fewer than ``generations`` once populations grow)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -222,10 +223,10 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
     state.result = Stage(
         setups=setups, x0=[float(v) for v in x0], sigma0=float(sigma0),
         material=Material.from_array(denormalize(np.clip(state.best_x, 0, 1))), loss=state.best_loss,
-        evaluations=state.evaluations, simulations=state.simulations, generations=state.generation,
+        evaluations=state.evaluations, simulations=state.simulations, generations=state.drawn // POPSIZE,
         cell_mm=objective.model.cell_mm, ppc=objective.model.ppc, history=state.history,
         wall_seconds=state.wall_seconds + time.perf_counter() - t0, archive=state.archive, screened=state.screened,
-        finish=finish,
+        finish=finish, cma_iterations=state.generation,
     )
     store.save_checkpoint(run_id, state)
     return state.result

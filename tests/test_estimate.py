@@ -110,7 +110,11 @@ def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch
     plain = _stage(exps, Store(tmp_path / "plain"), 30)  # STALL_DRAWS = 20 generations: no restart on this toy
     assert {h["restarts"] for h in plain.history} == {0}
     monkeypatch.setattr(cma_stage, "STALL_DRAWS", 3 * 7)
-    ref = _stage(exps, Store(tmp_path / "ref"), 30)
+    shown = []
+    ref = _stage(exps, Store(tmp_path / "ref"), 30,
+                 progress=lambda ev: shown.append(ev["generation"]) if ev["event"] == "generation" else None)
+    # the progress bar, the stage record (result.json) and the budget agree; CMA-ES iterations are fewer
+    assert shown[-1] == ref.generations == 30 and ref.cma_iterations == len(ref.history) < 30
     draws = np.diff([0] + [h["drawn"] for h in ref.history])
     restarts = [h["restarts"] for h in ref.history]
     assert max(restarts) >= 1
