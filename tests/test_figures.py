@@ -30,21 +30,60 @@ def colour_extent(img: np.ndarray, rgb, tol: int = 40) -> tuple[float, float]:
 
 
 def test_simulation_free_figures_have_content(tmp_path, capsys):
-    status = main(["figures", "--only", "fig02,fig5,fig06,fig09", "--quick", "--out", str(tmp_path)])
+    status = main(["figures", "--only", "fig02,fig5", "--quick", "--out", str(tmp_path)])
     assert status == 0
     lines = [s for s in capsys.readouterr().out.splitlines() if s.startswith("fig")]
-    by_name = {line.split(":")[0]: line for line in lines}
-    assert set(by_name) == {"fig02", "fig05", "fig06", "fig09"}
-    # figures whose study has not been run: one line each, naming the command that makes the data
-    assert "virheo study landscapes" in by_name["fig06"] and "Traceback" not in by_name["fig06"]
-    assert "virheo study conditioning" in by_name["fig09"]
+    assert {line.split(":")[0] for line in lines} == {"fig02", "fig05"}
     for name, series in (("fig02_1d_model", [PURPLE]), ("fig05_simple_shear", [PURPLE, RED])):
         img = _rgb(tmp_path / f"{name}.png")
         assert 0.03 < ink_fraction(img) < 0.5, name
         for rgb in series:  # every series spans the panels' time axis (six panels over the whole width)
             w, h = colour_extent(img, rgb)
             assert w > 0.7 and h > 0.4, (name, rgb, w, h)
-    assert not (tmp_path / "fig06_landscapes.png").exists()
+
+
+def test_landscape_figures_without_data_name_the_command(tmp_path, capsys):
+    # not quick and no --landscapes: nothing is simulated, one line per figure names the study command
+    status = main(["figures", "--only", "fig06,fig07,fig09", "--out", str(tmp_path)])
+    assert status == 0
+    out = capsys.readouterr().out
+    by_name = {line.split(":")[0]: line for line in out.splitlines() if line.startswith("fig")}
+    assert set(by_name) == {"fig06", "fig07", "fig09"} and "Traceback" not in out
+    assert "virheo study landscapes" in by_name["fig06"] and "virheo study landscapes" in by_name["fig07"]
+    assert "virheo study conditioning" in by_name["fig09"]
+    assert not list(tmp_path.glob("fig0*.png"))
+    # a folder without the study's files is one line too
+    (tmp_path / "empty").mkdir()
+    main(["figures", "--only", "fig06,fig09", "--out", str(tmp_path), "--landscapes", str(tmp_path / "empty")])
+    out = capsys.readouterr().out
+    assert "landscapes.json" in out and "conditioning.json" in out and "Traceback" not in out
+
+
+def test_landscape_figures_from_a_tiny_study(tmp_path, capsys, monkeypatch):
+    """Quick mode runs a tiny landscape and conditioning study (fake forward model) and draws Figs. 6, 7, 9;
+    a second run, given the study's folder, draws them again without simulating."""
+    monkeypatch.setenv("VIRHEO_SIMULATOR", "fake_forward:simulate")
+    out = tmp_path / "quick"
+    assert main(["figures", "--only", "fig06,fig07,fig09", "--quick", "--workers", "0", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count(".png") == 3, printed
+    study = out / "landscape-study"
+    assert (study / "landscapes.json").is_file() and (study / "conditioning" / "conditioning.json").is_file()
+    for name in ("fig06_landscapes", "fig07_views", "fig09_conditioning"):
+        img = _rgb(out / f"{name}.png")
+        assert 0.05 < ink_fraction(img) < 0.8, name
+    # Fig. 6 marks the ground truth and the matched Poiseuille plane in red in every panel's column
+    w, h = colour_extent(_rgb(out / "fig06_landscapes.png"), RED, tol=60)
+    assert w > 0.5 and h > 0.4, (w, h)
+    # Fig. 9: the coloured condition-number map fills a large part of the figure
+    img = _rgb(out / "fig09_conditioning.png")
+    assert (img.max(axis=2) - img.min(axis=2) > 60).mean() > 0.25
+
+    monkeypatch.setenv("FAKE_FORWARD_LOG", str(tmp_path / "sims.log"))
+    again = tmp_path / "again"
+    assert main(["figures", "--only", "fig06,fig09", "--out", str(again), "--landscapes", str(study)]) == 0
+    assert (again / "fig06_landscapes.png").is_file() and (again / "fig09_conditioning.png").is_file()
+    assert not (tmp_path / "sims.log").exists()  # drawn from the folder, nothing simulated
 
 
 def test_unknown_figure_is_a_one_line_error(tmp_path, capsys):
