@@ -86,3 +86,14 @@ def conditioning(out_dir, quick: bool, context, figure: str) -> dict:
     if not isinstance(data, dict) or "condition" not in data:
         raise MissingData(f"{folder / CONDITIONING_FILE} is not a conditioning study; run `{COMMANDS['conditioning']}`")
     return data
+
+
+def pick_pairs(records, count: int) -> list[dict]:
+    """Up to ``count`` matched landscapes, one per material first (the study lists a material's setups together)."""
+    matched = [r for r in records if r.get("match")]
+    seen, first, rest = set(), [], []
+    for r in matched:
+        key = tuple(sorted(r["material"].items()))
+        (rest if key in seen else first).append(r)
+        seen.add(key)
+    return (first + rest)[:count]

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from paper_figures._landscape_data import landscapes
+from paper_figures._landscape_data import landscapes, pick_pairs
 from paper_figures._plot import Context, MissingData, pyplot
 
 NAMES = ("eta", "n", "sigma_Y")
@@ -49,7 +49,7 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     grid = int(data["config"]["grid"])
     offsets = np.asarray(data["offsets"], dtype=float)
     hw = float(np.max(np.abs(offsets)))
-    pairs = [p for p in data["pairs"] if p.get("match")][:MAX_PAIRS]
+    pairs = pick_pairs(data["pairs"], MAX_PAIRS)
     if not pairs:
         raise MissingData("the landscape study has no matched landscape; run `virheo study landscapes --out DIR`")
     plt = pyplot()
