@@ -25,7 +25,7 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     if cond.shape != (len(heights), len(widths)) or not np.any(np.isfinite(cond)):
         raise MissingData("conditioning.json holds no condition number; run `virheo study conditioning --out DIR`")
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(5.0, 4.2), dpi=100)
+    fig, ax = plt.subplots(figsize=(5.6, 4.4), dpi=100)
     hw = (widths[1] - widths[0]) / 2 if len(widths) > 1 else 1.0
     hh = (heights[1] - heights[0]) / 2 if len(heights) > 1 else 1.0
     im = ax.imshow(cond, origin="lower", cmap="viridis", interpolation="nearest", aspect="auto",
@@ -40,6 +40,6 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
                             color="k" if cond[i, j] > mid else "w")
     m = data["material"]
     ax.set(xlabel="width W (mm)", ylabel="height H (mm)", xticks=widths, yticks=heights)
-    ax.set_title(f"Fig. 9: FD Hessian condition number\neta={m['eta']:.3g} Pa s^n, n={m['n']:.3g}, "
-                 f"sigma_Y={m['sigma_y']:.3g} Pa; step {data['fd_step']:g}, {data['preset']} preset", fontsize=9)
+    ax.set_title(f"Fig. 9: FD Hessian condition number (step {data['fd_step']:g}, {data['preset']} preset)\n"
+                 f"eta={m['eta']:.3g} Pa s^n, n={m['n']:.3g}, sigma_Y={m['sigma_y']:.3g} Pa", fontsize=8)
     return [save_figure(fig, Path(out_dir) / "fig09_conditioning.png", dpi=100)]

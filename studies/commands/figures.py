@@ -23,7 +23,9 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder for the PNGs (and table1.md)")
     p.add_argument("--store", default=None, metavar="PATH", help="simulation store (default: DIR/store)")
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
-    p.add_argument("--landscapes", default=None, metavar="DIR", help="output folder of the landscape study (Figs. 6, 7, 9)")
+    p.add_argument("--landscapes", default=None, metavar="DIR",
+                   help="output folder of `virheo study landscapes` (Figs. 6, 7; Fig. 9 reads conditioning.json there "
+                   "or in DIR/conditioning); with --quick and no DIR a tiny study is run into OUT/landscape-study")
     p.set_defaults(func=run)
 
 
