@@ -1,4 +1,5 @@
-"""Files of the simulation store: canonical JSON and its digest, packed silhouettes, atomic writes.
+"""Files of the simulation store and the reports: canonical JSON and its digest, packed silhouettes,
+atomic writes, strict JSON files.
 
 Every file the store (and the reports) write goes through :func:`atomic_write` (temp file, fsync,
 rename), so a kill at any moment leaves the old file or the new one, never half of one.
@@ -7,6 +8,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -79,3 +81,20 @@ def atomic_write(path, write, *, mode: str = "b") -> Path:
             pass
         raise
     return path
+
+
+def _finite_or_none(o):
+    """Replace non-finite floats by None (strict JSON)."""
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: _finite_or_none(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_none(v) for v in o]
+    return o
+
+
+def write_json(path, data) -> Path:
+    """Write ``data`` as indented strict JSON (non-finite numbers as null), all or nothing."""
+    text = json.dumps(_finite_or_none(json.loads(json.dumps(data, default=json_default))), indent=2, allow_nan=False)
+    return atomic_write(path, lambda fh: fh.write(text + "\n"), mode="t")
