@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_command_group, add_preset_option, add_run_options, check_run_options, integer, open_run
+from studies.commands.context import (add_command_group, add_preset_option, add_run_options, check_run_options,
+                                      integer, open_run)
 
 
 def register(subparsers) -> None:
