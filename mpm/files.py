@@ -1,5 +1,5 @@
 """Files of the simulation store and the reports: canonical JSON and its digest, packed silhouettes,
-atomic writes, strict JSON files.
+atomic writes, strict JSON files and reading them back.
 
 Every file the store (and the reports) write goes through :func:`atomic_write` (temp file, fsync,
 rename), so a kill at any moment leaves the old file or the new one, never half of one.
@@ -98,3 +98,12 @@ def write_json(path, data) -> Path:
     """Write ``data`` as indented strict JSON (non-finite numbers as null), all or nothing."""
     text = json.dumps(_finite_or_none(json.loads(json.dumps(data, default=json_default))), indent=2, allow_nan=False)
     return atomic_write(path, lambda fh: fh.write(text + "\n"), mode="t")
+
+
+def read_json(path):
+    """The JSON value held by file ``path``; a one-line ValueError when the file is not valid JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None

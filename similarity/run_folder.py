@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mpm.files import read_json
 from similarity.space import Material
 
 
@@ -35,10 +36,7 @@ def read_result(folder) -> tuple[dict, Material]:
     path = folder / "result.json"
     if not path.is_file():
         raise ValueError(f"{folder}: no result.json (not a folder written by virheo estimate or virheo demo)")
-    try:
-        result = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    result = read_json(path)
     est = result.get("estimate") if isinstance(result, dict) else None
     if not isinstance(est, dict) or set(est) != {"eta", "n", "sigma_y"}:
         raise ValueError(f"{path} holds no estimate (eta, n, sigma_y)")

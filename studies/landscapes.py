@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
+from mpm.files import read_json
 from similarity import estimate as E
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
 from similarity.normals import normals_at
@@ -242,10 +243,7 @@ def load(folder) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"{folder} is not a finished landscape study: no {RESULT_FILE} "
                                 "(run 'virheo study landscapes --out FOLDER' first)")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    data = read_json(path)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"{path} is not a landscape study file (format {FORMAT})")
     return data
