@@ -14,7 +14,7 @@ Video losses against an experiment are cached per (request key, experiment id) i
 CMA-ES checkpoints (any picklable object) live in ``checkpoints/<run_id>.pkl`` with the previous
 one kept as ``<run_id>.prev.pkl``.
 
-Crash safety: every file is written by :func:`atomic_write` (temp file, fsync, rename) *before*
+Crash safety: every file is written by :func:`mpm.files.atomic_write` (temp file, fsync, rename) *before*
 its index row is committed (one SQLite transaction, WAL journal), so a kill at any moment leaves
 complete files only.  Damage from outside (a full disk, an interrupted copy) is healed on open:
 a damaged index is moved aside and rebuilt from the array files, an unreadable array is
@@ -22,12 +22,10 @@ simulated again, an unreadable checkpoint falls back to the previous one or to t
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import pickle
 import sqlite3
-import tempfile
 import time
 import warnings
 import zipfile
@@ -36,6 +34,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from mpm.files import atomic_write, canonical_json, digest, json_default, pack, unpack  # noqa: F401 (re-exported)
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS sims (
@@ -53,28 +53,6 @@ CREATE TABLE IF NOT EXISTS losses (
     PRIMARY KEY (key, experiment)
 );
 """
-
-
-def _canonical(value) -> str:
-    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=json_default)
-
-
-def json_default(o):
-    """``json.dumps(default=...)`` for numpy values, paths and objects with ``to_dict()``."""
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    if hasattr(o, "to_dict"):
-        return o.to_dict()
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
-def digest(value) -> str:
-    """SHA-256 hex digest of the canonical JSON of ``value`` (sorted keys, floats as repr)."""
-    return hashlib.sha256(_canonical(value).encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -115,7 +93,7 @@ class SimRequest:
         d = dict(d)
         d["image_size"] = tuple(d.get("image_size", (960, 540)))
         cam = d.get("camera")
-        d["camera"] = _canonical(cam) if cam is not None else None
+        d["camera"] = canonical_json(cam) if cam is not None else None
         return cls(**d)
 
     @property
@@ -144,50 +122,6 @@ class SimResult:
     @property
     def ok(self) -> bool:
         return self.error is None
-
-
-def pack(silhouettes: np.ndarray) -> tuple[np.ndarray, tuple]:
-    """Bool (F, H, W) -> (uint8 packed bits, shape)."""
-    s = np.asarray(silhouettes, dtype=bool)
-    return np.packbits(s.reshape(s.shape[0], -1), axis=1), tuple(s.shape)
-
-
-def unpack(packed: np.ndarray, shape) -> np.ndarray:
-    shape = tuple(int(v) for v in shape)
-    flat = np.unpackbits(packed, axis=1, count=int(np.prod(shape[1:])))
-    return flat.reshape(shape).astype(bool)
-
-
-def _read_umask() -> int:
-    mask = os.umask(0o022)  # the only way to read it; set back at once (at import, before any threads)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _read_umask()
-
-
-def atomic_write(path, write, *, mode: str = "b") -> Path:
-    """Write ``path`` all or nothing: ``write(fileobj)`` fills a temp file beside it, which is flushed to
-    disk (fsync) and renamed over ``path``.  A kill or a full disk leaves the old file (or none), never a
-    half-written one.  The file gets the user's normal mode (0666 less the umask).  ``mode``: "b" or "t"."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        os.fchmod(fd, 0o666 & ~_UMASK)
-        with os.fdopen(fd, "w" + mode) as fh:
-            write(fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    return path
 
 
 class StoreWarning(UserWarning):
@@ -272,7 +206,7 @@ class Store:
             if key != path.stem:
                 skipped += 1
                 continue
-            rows.append((key, _canonical(request), "ok", None, wall, path.stat().st_mtime))
+            rows.append((key, canonical_json(request), "ok", None, wall, path.stat().st_mtime))
         with db:
             db.execute("BEGIN IMMEDIATE")
             db.executemany("INSERT OR REPLACE INTO sims (key, request, status, error, wall_seconds, created) "
@@ -334,8 +268,8 @@ class Store:
                 shape=np.asarray(shape, dtype=np.int64),
                 front_m=np.asarray(result.front_m if result.front_m is not None else [], dtype=float),
                 times=np.asarray(result.times if result.times is not None else [], dtype=float),
-                stats=np.asarray(_canonical(result.stats or {})),
-                request=np.asarray(_canonical(request.to_dict())),
+                stats=np.asarray(canonical_json(result.stats or {})),
+                request=np.asarray(canonical_json(request.to_dict())),
                 wall_seconds=np.asarray(float(result.wall_seconds)),
             )
             atomic_write(self._array_path(key), lambda fh: np.savez_compressed(fh, **arrays))
@@ -344,7 +278,7 @@ class Store:
             self._db.execute("BEGIN IMMEDIATE")
             self._db.execute(
                 "INSERT OR REPLACE INTO sims (key, request, status, error, wall_seconds, created) VALUES (?,?,?,?,?,?)",
-                (key, _canonical(request.to_dict()), status, result.error, float(result.wall_seconds), time.time()),
+                (key, canonical_json(request.to_dict()), status, result.error, float(result.wall_seconds), time.time()),
             )
 
     def count(self, status: str | None = None) -> int:

@@ -32,11 +32,14 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
+from mpm.files import read_json
 from similarity import estimate as E
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
 from similarity.normals import normals_at
 from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, normalize
-from studies.report import save_figure, write_json
+from studies.conditioning import conditioning  # noqa: F401 (re-exported)
+from studies.landscape_plots import plot_slices
+from studies.report import write_json
 from surrogate import theta_fit
 
 STUDY_FILE = "study.json"
@@ -240,140 +243,19 @@ def load(folder) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"{folder} is not a finished landscape study: no {RESULT_FILE} "
                                 "(run 'virheo study landscapes --out FOLDER' first)")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    data = read_json(path)
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"{path} is not a landscape study file (format {FORMAT})")
     return data
 
 
-# -- plots ---------------------------------------------------------------------------------------------
+# -- the Poiseuille counterpart of a landscape ---------------------------------------------------------------------------------------------
 def poiseuille_landscape(material: Material, offsets, c_pa: float) -> np.ndarray:
     """The plane-Poiseuille loss (eq. 26) at material offsets (normalised) for wall stress C = P L."""
     from poiseuille import loss
 
     m_tilde = denormalize(normalize(material.as_array()) + np.asarray(offsets, dtype=float))
     return loss(m_tilde, material.as_array(), P_SEARCH, c_pa / P_SEARCH)
-
-
-def plot_slices(path, rec: dict, offsets, grid: int) -> Path:
-    """Fig. 6 style: the three central slices of the MPM landscape (top) beside the matched Poiseuille
-    landscape (bottom), with the similarity set's trace (the plane normal to q) drawn as a line."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    m = Material(**rec["material"])
-    offsets = np.asarray(offsets, dtype=float)
-    mpm = np.asarray(rec["losses"], dtype=float).reshape(grid, grid, grid)
-    # a finer Poiseuille grid over the same block: cheap and closed-form
-    hw = float(np.max(np.abs(offsets)))
-    fine = 41
-    axis = np.linspace(-hw, hw, fine)
-    names = ("eta", "n", "sigma_y")
-    fig, axes = plt.subplots(2, 3, figsize=(10, 6.4), dpi=100)
-    q_pp = np.asarray(rec["match"]["q_pp"])
-    q_fd = None if rec.get("q_max") is None else np.asarray(rec["q_max"])
-    mid = grid // 2
-    for col, (a, b) in enumerate(((0, 1), (0, 2), (1, 2))):
-        c = 3 - a - b
-        sl = [slice(None)] * 3
-        sl[c] = mid
-        img = mpm[tuple(sl)]  # axes (a, b)
-        ax = axes[0, col]
-        ax.imshow(img.T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis", interpolation="bicubic" if grid > 3 else "nearest")
-        if q_fd is not None:
-            _trace(ax, q_fd, a, b, hw, "w", "FD normal")
-        _trace(ax, q_pp, a, b, hw, "r", "matched PP")
-        ax.set(xlabel=f"d{names[a]} (normalised)", ylabel=f"d{names[b]}", title=f"MPM loss, d{names[c]} = 0")
-        pts = np.zeros((fine, fine, 3))
-        pts[..., a], pts[..., b] = np.meshgrid(axis, axis, indexing="ij")
-        pp = poiseuille_landscape(m, pts.reshape(-1, 3), rec["match"]["C_Pa"]).reshape(fine, fine)
-        ax = axes[1, col]
-        ax.imshow(pp.T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis")
-        _trace(ax, q_pp, a, b, hw, "r", "matched PP")
-        ax.set(xlabel=f"d{names[a]} (normalised)", ylabel=f"d{names[b]}", title=f"Poiseuille loss, C = {rec['match']['C_Pa']:.3g} Pa")
-    axes[0, 0].legend(fontsize=7, loc="lower left")
-    s = rec["setup"]
-    fig.suptitle(f"eta={m.eta:.3g} Pa s^n, n={m.n:.3g}, sigma_y={m.sigma_y:.3g} Pa; setup {s['width_mm']:g}x{s['height_mm']:g} mm")
-    return save_figure(fig, path)
-
-
-def _trace(ax, q, a, b, hw, color, label):
-    """The line where the plane q . dM = 0 cuts the (a, b) slice: direction (-q_b, q_a)."""
-    d = np.array([-q[b], q[a]])
-    if np.linalg.norm(d) < 1e-12:
-        return
-    d = d / np.linalg.norm(d) * hw * 1.5
-    ax.plot([-d[0], d[0]], [-d[1], d[1]], "--", color=color, lw=1.5, label=label)
-    ax.set_xlim(-hw, hw)
-    ax.set_ylim(-hw, hw)
-
-
-# -- condition numbers over the setup space (Fig. 9) --------------------------------------------------
-def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", store,
-                 executor=None, simulator: str = batch.DEFAULT_SIMULATOR, progress=None, density: float = 1000.0) -> dict:
-    """Condition number of the FD Hessian of ``material``'s loss at each setup of a ``steps`` x ``steps``
-    grid over the setup space; writes ``conditioning.json`` and ``conditioning.png`` into ``out``."""
-    if steps < 2:
-        raise ValueError(f"steps={steps}: the setup grid needs at least 2 points per axis")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    preset = E.get_preset(preset)
-    u = normalize(material.as_array())
-    if np.any(u - fd_step < 0) or np.any(u + fd_step > 1):
-        raise ValueError(f"{material} lies within the finite-difference step {fd_step:g} of the material space's "
-                         "boundary (normalised coordinates); choose a smaller --fd-step or another material")
-    lo, hi = SETUP_RANGE_MM
-    sizes = np.round(np.linspace(lo, hi, steps))
-    setups = [Setup(float(w), float(h)) for h in sizes for w in sizes]
-    shots = E.emulate(material, setups, density=density, preset=preset, store=store, executor=executor,
-                      simulator=simulator)
-    probes = stencil(fd_step)
-    u0 = normalize(material.as_array())
-    jobs = []
-    for e in shots:
-        eid = batch.experiment_id(e.frames, e.name)
-        for du in probes:
-            jobs.append((E.simulation_request(Material.from_array(denormalize(u0 + du)), e, preset.final, simulator), eid, e.frames))
-    tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
-    losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
-    cond = np.full(len(setups), np.nan)
-    normals, eigen = [], []
-    for k, row in enumerate(losses):
-        if np.all(np.isfinite(row)):
-            sp = spectrum(hessian_from_stencil(row, fd_step))
-            cond[k] = sp.condition
-            normals.append(sp.q_max.tolist())
-            eigen.append(sp.eigenvalues.tolist())
-        else:
-            normals.append(None)
-            eigen.append(None)
-    grid = cond.reshape(steps, steps)  # rows = height, columns = width
-    res = {"material": material.to_dict(), "fd_step": fd_step, "preset": preset.name, "widths_mm": sizes.tolist(),
-           "heights_mm": sizes.tolist(), "condition": grid.tolist(), "q_max": normals, "eigenvalues": eigen,
-           "setups": [str(s) for s in setups], "face_losses": losses[:, :6].tolist(),
-           "min": float(np.nanmin(cond)), "median": float(np.nanmedian(cond)), "max": float(np.nanmax(cond)),
-           "simulations": len(jobs) + len(setups), "wall_seconds": time.perf_counter() - t0}
-    write_json(out / "conditioning.json", res)
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.2, 4.4), dpi=110)
-    half = (sizes[1] - sizes[0]) / 2
-    im = ax.imshow(np.log10(grid), origin="lower", cmap="magma", interpolation="nearest",
-                   extent=(sizes[0] - half, sizes[-1] + half, sizes[0] - half, sizes[-1] + half))
-    fig.colorbar(im, ax=ax, label="log10 condition number")
-    ax.set(xlabel="width W [mm]", ylabel="height H [mm]",
-           title=f"eta={material.eta:.3g} Pa s^n, n={material.n:.3g}, sigma_y={material.sigma_y:.3g} Pa")
-    save_figure(fig, out / "conditioning.png")
-    return res
 
 
 # -- fitting Theta to a study (section 5.5) -----------------------------------------------------------

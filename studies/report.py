@@ -1,37 +1,18 @@
 """Report writers: result.json, Herschel-Bulkley flow-curve plots, silhouette overlays, progress bars."""
 from __future__ import annotations
 
-import json
-import math
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
-from mpm.store import atomic_write, json_default
+from mpm.files import atomic_write, write_json  # noqa: F401 (write_json re-exported)
 
 SHEAR_RATES = np.logspace(-2, 4, 200)  # 1/s, the range of the paper's flow-curve plots (Fig. 10)
 
 # overlay colours (RGB): both, captured only, simulated only, background
 _BOTH, _CAPTURED, _SIMULATED, _BACKGROUND = (70, 70, 70), (40, 110, 230), (230, 60, 40), (255, 255, 255)
-
-
-def _clean(o):
-    """Replace non-finite floats by None (strict JSON)."""
-    if isinstance(o, float) and not math.isfinite(o):
-        return None
-    if isinstance(o, dict):
-        return {k: _clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    return o
-
-
-def write_json(path, data: Mapping) -> Path:
-    """Write ``data`` as indented strict JSON (non-finite numbers as null), all or nothing."""
-    text = json.dumps(_clean(json.loads(json.dumps(data, default=json_default))), indent=2, allow_nan=False)
-    return atomic_write(path, lambda fh: fh.write(text + "\n"), mode="t")
 
 
 def flow_curve_png(path, curves: Mapping[str, object], *, dashed: Mapping[str, object] | None = None,

@@ -67,6 +67,14 @@ def integer(text: str) -> int:
 PRESET_NAMES = Names("similarity.estimate:PRESETS")
 
 
+def add_command_group(subparsers, name: str, *, help: str, description: str, dest: str, metavar: str):
+    """Register command ``name`` whose actions are sub-commands (returned as their subparsers action);
+    given without an action it prints its help and exits 2."""
+    p = subparsers.add_parser(name, help=help, description=description)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+    return p.add_subparsers(dest=dest, metavar=metavar)
+
+
 def add_preset_option(p: argparse.ArgumentParser, default: str) -> None:
     p.add_argument("--preset", default=default, choices=PRESET_NAMES, metavar="NAME",
                    help="accuracy/time trade-off, one of: %(choices)s (default %(default)s; "

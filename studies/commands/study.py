@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run
+from studies.commands.context import (add_command_group, add_preset_option, add_run_options, check_run_options,
+                                      integer, open_run)
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("study", help="long studies (emulation: section 7.1)",
-                              description="Long-running studies; each resumes from its simulation store.")
-    sub = p.add_subparsers(dest="study", metavar="STUDY")
+    sub = add_command_group(subparsers, "study", help="long studies (emulation: section 7.1)",
+                            description="Long-running studies; each resumes from its simulation store.",
+                            dest="study", metavar="STUDY")
     e = sub.add_parser("emulation", help="one setup vs two setups on emulated footage (section 7.1, Fig. 10)",
                        description="Materials by Poisson-disk sampling, several runs each from random first setups; "
                        "two-setup ViRheometry vs one setup at equal simulation count.")
@@ -23,7 +24,6 @@ def register(subparsers) -> None:
     from studies.commands import landscapes
 
     landscapes.register(sub)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def run_emulation(args: argparse.Namespace) -> int:

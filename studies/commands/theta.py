@@ -5,11 +5,12 @@ import argparse
 import json
 from pathlib import Path
 
+from studies.commands.context import add_command_group
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("theta", help="fit the conversion map Theta to a landscape study (section 5.5)",
-                              description="Conversion maps Theta(M, S) -> (P, L).")
-    sub = p.add_subparsers(dest="theta_command", metavar="ACTION")
+    sub = add_command_group(subparsers, "theta", help="fit the conversion map Theta to a landscape study (section 5.5)",
+                            description="Conversion maps Theta(M, S) -> (P, L).", dest="theta_command", metavar="ACTION")
     f = sub.add_parser("fit", help="fit Theta to the matched landscapes of a study",
                        description="Match every landscape of STUDY (a folder written by 'virheo study landscapes') to "
                        "its best plane-Poiseuille setup (eq. 43, 1D search over P L), fit the reciprocal degree-2 "
@@ -24,7 +25,6 @@ def register(subparsers) -> None:
     f.add_argument("--compare", type=int, default=50, metavar="N",
                    help="random materials on which the second setups of the fitted and published maps are compared (default 50)")
     f.set_defaults(func=run_fit)
-    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
 
 
 def run_fit(args: argparse.Namespace) -> int:

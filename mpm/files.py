@@ -1,0 +1,109 @@
+"""Files of the simulation store and the reports: canonical JSON and its digest, packed silhouettes,
+atomic writes, strict JSON files and reading them back.
+
+Every file the store (and the reports) write goes through :func:`atomic_write` (temp file, fsync,
+rename), so a kill at any moment leaves the old file or the new one, never half of one.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+
+def canonical_json(value) -> str:
+    """Canonical JSON text of ``value``: sorted keys, no spaces, numpy values as Python ones."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), default=json_default)
+
+
+def json_default(o):
+    """``json.dumps(default=...)`` for numpy values, paths and objects with ``to_dict()``."""
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    if hasattr(o, "to_dict"):
+        return o.to_dict()
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def digest(value) -> str:
+    """SHA-256 hex digest of the canonical JSON of ``value`` (sorted keys, floats as repr)."""
+    return hashlib.sha256(canonical_json(value).encode()).hexdigest()
+
+
+def pack(silhouettes: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """Bool (F, H, W) -> (uint8 packed bits, shape)."""
+    s = np.asarray(silhouettes, dtype=bool)
+    return np.packbits(s.reshape(s.shape[0], -1), axis=1), tuple(s.shape)
+
+
+def unpack(packed: np.ndarray, shape) -> np.ndarray:
+    shape = tuple(int(v) for v in shape)
+    flat = np.unpackbits(packed, axis=1, count=int(np.prod(shape[1:])))
+    return flat.reshape(shape).astype(bool)
+
+
+def _read_umask() -> int:
+    mask = os.umask(0o022)  # the only way to read it; set back at once (at import, before any threads)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _read_umask()
+
+
+def atomic_write(path, write, *, mode: str = "b") -> Path:
+    """Write ``path`` all or nothing: ``write(fileobj)`` fills a temp file beside it, which is flushed to
+    disk (fsync) and renamed over ``path``.  A kill or a full disk leaves the old file (or none), never a
+    half-written one.  The file gets the user's normal mode (0666 less the umask).  ``mode``: "b" or "t"."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        os.fchmod(fd, 0o666 & ~_UMASK)
+        with os.fdopen(fd, "w" + mode) as fh:
+            write(fh)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except FileNotFoundError:
+            pass
+        raise
+    return path
+
+
+def _finite_or_none(o):
+    """Replace non-finite floats by None (strict JSON)."""
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    if isinstance(o, dict):
+        return {k: _finite_or_none(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_none(v) for v in o]
+    return o
+
+
+def write_json(path, data) -> Path:
+    """Write ``data`` as indented strict JSON (non-finite numbers as null), all or nothing."""
+    text = json.dumps(_finite_or_none(json.loads(json.dumps(data, default=json_default))), indent=2, allow_nan=False)
+    return atomic_write(path, lambda fh: fh.write(text + "\n"), mode="t")
+
+
+def read_json(path):
+    """The JSON value held by file ``path``; a one-line ValueError when the file is not valid JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None

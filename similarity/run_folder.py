@@ -1,0 +1,98 @@
+"""A finished ``virheo estimate`` / ``virheo demo`` folder: its ``result.json``, its ``posterior.json``
+and the experiments it was fitted to (experiment folders, or emulated footage rebuilt from the store).
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mpm.files import read_json
+from similarity.space import Material
+
+
+@dataclass
+class Run:
+    """A finished ``virheo estimate`` / ``virheo demo`` folder, its experiments and store."""
+
+    folder: Path
+    result: dict
+    estimate: Material
+    experiments: list
+    preset: object
+    simulator: str
+    store: object
+    truth: Material | None = None
+    setups: list = field(default_factory=list)
+
+
+def read_result(folder) -> tuple[dict, Material]:
+    """``folder/result.json`` and its estimate; FileNotFoundError / one-line ValueError otherwise."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"run folder {folder} not found")
+    path = folder / "result.json"
+    if not path.is_file():
+        raise ValueError(f"{folder}: no result.json (not a folder written by virheo estimate or virheo demo)")
+    result = read_json(path)
+    est = result.get("estimate") if isinstance(result, dict) else None
+    if not isinstance(est, dict) or set(est) != {"eta", "n", "sigma_y"}:
+        raise ValueError(f"{path} holds no estimate (eta, n, sigma_y)")
+    try:
+        return result, Material(float(est["eta"]), float(est["n"]), float(est["sigma_y"]))
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: bad estimate ({exc})") from None
+
+
+def read_posterior(folder) -> dict:
+    """``folder/posterior.json`` written by :func:`similarity.posterior.analyse` (``virheo report``)."""
+    path = Path(folder) / "posterior.json"
+    if not path.is_file():
+        raise ValueError(f"{folder}: no posterior.json; run `virheo report {folder}` first")
+    try:
+        s = json.loads(path.read_text())
+        cov = np.asarray(s["posterior"]["cov_normalised"], float)
+        Material(**s["posterior"]["mean"])
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: not a posterior summary ({exc})") from None
+    if cov.shape != (3, 3):
+        raise ValueError(f"{path}: covariance is not 3 x 3")
+    return s
+
+
+def load_run(folder, *, store=None, executor=None) -> Run:
+    """Read ``folder/result.json`` and rebuild its experiments (folders, or emulated footage from the store)."""
+    from mpm import batch
+    from mpm.store import Store
+    from similarity.estimate import emulate, get_preset
+    from similarity.space import Setup
+
+    folder = Path(folder)
+    result, estimate = read_result(folder)
+    path = folder / "result.json"
+    preset = get_preset(result.get("preset", "demo"))
+    simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
+    store = store if store is not None else Store(folder / "store")
+    setups = [Setup.parse(s) for s in result.get("setups", [])]
+    truth = None
+    if result.get("folders"):
+        from mpm.experiment import load
+
+        experiments = [load(d) for d in result["folders"]]
+    elif result.get("truth"):
+        t = result["truth"]
+        truth = Material(float(t["eta"]), float(t["n"]), float(t["sigma_y"]))
+        info = result.get("experiments") or []
+        experiments = []
+        for i, s in enumerate(setups):
+            density = float(info[i]["density"]) if i < len(info) else 1000.0
+            experiments += emulate(truth, [s], density=density, preset=preset, store=store, executor=executor,
+                                   simulator=simulator)
+    else:
+        raise ValueError(f"{path}: names neither experiment folders nor a ground truth; cannot rebuild the footage")
+    if not experiments:
+        raise ValueError(f"{path}: no setups")
+    return Run(folder, result, estimate, experiments, preset, simulator, store, truth,
+               setups or [Setup(e.width_mm, e.height_mm) for e in experiments])
