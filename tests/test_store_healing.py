@@ -25,7 +25,8 @@ def reference(tmp_path_factory):
 
 
 def _estimate(exps, store):
-    return E.estimate(exps, seed=5, workers=0, store=store, simulator=SIM, generations=GENS, propose=None)
+    return E.estimate(exps, preset="demo", seed=5, workers=0, store=store, simulator=SIM, generations=GENS,
+                      propose=None)
 
 
 def _fresh_store(tmp_path, exps, log, monkeypatch):
