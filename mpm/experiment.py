@@ -1,6 +1,6 @@
 """Experiment folders: ``settings.xml``, ``camera_params.xml`` and ``config_01.png .. config_08.png``.
 
-Reading follows REFERENCE_SPEC sections 1.3, 2.2 and 6:
+Reading follows the reference implementation's conventions:
 - the setup (W along the flow, H) comes from the ``<cuboid max="W H D+0.15">``, which the reference MPM
   uses; ``<setup W H>`` and the folder name ``ref_<Material>_<H>_<W>_<k>`` are cross-checked and a
   disagreement is a warning (one shared folder has a swapped ``<setup>``);

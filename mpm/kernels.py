@@ -5,11 +5,12 @@ One ``step`` launch advances the dam-break by one time step (paper section 4, ap
    APIC transfer, Kirchhoff stress of ``mpm.constitutive.kirchhoff_stress``, initial particle volume V_p).
 2. Grid: p += dt m g; nodes inside a wall box get p = 0 (sticking); v_i = p / m. With a slip length
    b > 0 a second pass gives the wall nodes the tangential velocity of the Navier law u_s = b du/dn,
-   fitted through the first node outside the wall (docs/performance.md, "Wall slip").
-With one thread all the steps up to the next time-step update run in one launch (a serial loop).
+   fitted through the first node outside the wall (docs/method/forward-model.md, "Wall slip"; measured
+   effect: docs/performance.md, "Wall slip").
 3. G2P: v_p = sum w v_i, C_p = sum v_i (x) grad w, elastic predictor b* = F b F^T with F = I + dt C
    (eq. 52), plastic correction ``mpm.constitutive.return_mapping`` (eq. 57); particles inside a wall box
    are frozen (v = 0, C = 0); advection x += dt v.
+With one thread all the steps up to the next time-step update run in one launch (a serial loop).
 The grid is a dense window over the particles' stencil bounding box, recomputed every step; grid nodes
 sit at integer multiples of the cell width (the wall planes x = 0, y = 0, z = 0 are nodes).
 """

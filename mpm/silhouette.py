@@ -29,7 +29,7 @@ BOX_EDGES = tuple((a, b) for a in range(8) for b in range(a + 1, 8) if bin(a ^ b
 def default_radius_m(spacing_m: float | None = None) -> float:
     """Splat radius: 1.0 mm (the reference's skinned surface), at least 0.75 x the particle spacing.
 
-    Measured on the Worcestershire setup-2 footage (docs/silhouettes.md): with cells of 1.5-3 mm
+    Measured on the Worcestershire setup-2 footage (docs/method/forward-model.md): with cells of 1.5-3 mm
     (spacing 0.75-1.5 mm) a radius of 1.0-1.2 mm is within 1e-4 of the best loss at every resolution,
     while keeping the surface a fixed distance beyond the material (1.0 mm + (spacing - 0.63 mm)/2)
     scores up to 1.5e-4 worse at the coarse end. 0.75 x spacing keeps sparse lattices gap-free.

@@ -26,7 +26,7 @@ MATERIALS = [("Worcestershire sauce (Table 1)", 0.55, 0.81, 1.95, 1200.0),
              ("moisturizing milk (Table 1)", 1.27, 0.87, 14.75, 1025.0)]
 SETUP_MM = (40.0, 50.0)  # width x height
 SCALES = [(1, 1), (10, 1), (1, 10), (10, 10)]  # (kappa factor, mu factor)
-CELL_MM = {True: 5.0, False: None}  # quick: the quick preset's 5 mm cells; full: the solver's default (1.5 mm)
+CELL_MM = {True: 5.0, False: None}  # quick: the demo preset's 5 mm cells; full: the solver's default (1.5 mm)
 
 # the forward model of this module is the default one with scaled moduli: its version follows the solver's
 CODE_VERSION = batch.code_version(batch.DEFAULT_SIMULATOR) + "-" + hashlib.sha256(
