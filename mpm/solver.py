@@ -16,6 +16,7 @@ import numpy as np
 import taichi as ti
 
 from mpm import kernels as kn
+from mpm.engine import Engine, engine
 from mpm import runtime
 from mpm import scene as sc
 from mpm.params import FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule, frame_times
@@ -116,7 +117,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
                               depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc)
     t_start, cpu_start = time.perf_counter(), time.process_time()
-    eng = kn.engine(dim, precision)
+    eng = engine(dim, precision)
     t_ready = time.perf_counter()
     run = _Run(eng, scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip)
     frames3, front, stats = run.execute(progress)
@@ -141,7 +142,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
 class _Run:
     """One simulation on an engine's buffers."""
 
-    def __init__(self, eng: kn.Engine, scene: sc.DamBreak, eta, n, sigma_y, yue: bool, slip_m: float = 0.0,
+    def __init__(self, eng: Engine, scene: sc.DamBreak, eta, n, sigma_y, yue: bool, slip_m: float = 0.0,
                  body=None):
         self.eng, self.scene = eng, scene
         self.eta, self.n, self.sigma_y, self.yue = eta, n, sigma_y, yue

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from mpm import scene as sc
-from mpm import kernels, solver
+from mpm import engine, solver
 from mpm.camera import Camera
 from mpm.loss import iou
 
@@ -50,7 +50,7 @@ def test_layer_under_horizontal_body_force_slides_as_the_navier_law_predicts(sli
     After a few diffusion times h^2/nu the particles between frames 4 and 8 (1/6 s) move u(y) * 1/6 s."""
     eta, rho, g, h = 10.0, 1000.0, 0.5, 0.02
     scene = _FloorOnly.build(NS(width_mm=70, height_mm=20), density=rho, cell_mm=1.0, dim=2, ppc=2)
-    eng = kernels.engine(2, "f32")
+    eng = engine.engine(2, "f32")
     run = solver._Run(eng, scene, eta, 1.0, 0.0, False, slip_m=slip_m, body=(g, 0.0, 0.0))
     x0 = scene.particles()
     snaps = {}

@@ -114,14 +114,14 @@ def test_plane_strain_variant_orders_runouts_like_3d():
 def test_repeated_calls_reuse_the_engine_and_its_buffers():
     """Another material, setup, density and cell width run on the same compiled engine; its particle
     buffers only grow."""
-    from mpm import kernels
+    from mpm import engine
 
     run(0.3)
-    eng = kernels.engine(3, "f32")
+    eng = engine.engine(3, "f32")
     cap = eng.cap_p
     smaller = mpm.simulate(NS(eta=2.0, n=0.5, sigma_y=1.0), NS(width_mm=25, height_mm=22), density=1100.0,
                            cell_mm=3.0)
-    assert kernels.engine(3, "f32") is eng
+    assert engine.engine(3, "f32") is eng
     assert smaller.stats["n_particles"] < cap == eng.cap_p
 
 
