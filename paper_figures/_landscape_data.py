@@ -88,6 +88,18 @@ def conditioning(out_dir, quick: bool, context, figure: str) -> dict:
     return data
 
 
+def matched_pairs(out_dir, quick: bool, context, figure: str, count: int) -> tuple[dict, float, list[dict]]:
+    """(study data, half-width of its landscape block, up to ``count`` matched landscapes) for ``figure``."""
+    import numpy as np
+
+    data = landscapes(out_dir, quick, context, figure)
+    hw = float(np.max(np.abs(np.asarray(data["offsets"], dtype=float))))
+    pairs = pick_pairs(data["pairs"], count)
+    if not pairs:
+        raise MissingData("the landscape study has no matched landscape; run `virheo study landscapes --out DIR`")
+    return data, hw, pairs
+
+
 def pick_pairs(records, count: int) -> list[dict]:
     """Up to ``count`` matched landscapes, one per material first (the study lists a material's setups together)."""
     matched = [r for r in records if r.get("match")]

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -102,8 +101,3 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     fig.suptitle(f"Elastic moduli x1 / x10 (kappa = 1e4 Pa, mu = 1e3 Pa), setup {setup} mm, t = 1/3 s, "
                  f"{'5 mm cells (quick)' if quick else '1.5 mm cells'}", fontsize=9)
     return [save_figure(fig, Path(out_dir) / "fig03_elastic_moduli.png")]
-
-
-if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    print(make(args[0] if args else "docs/figures", quick="--quick" in sys.argv)[0])

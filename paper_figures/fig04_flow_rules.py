@@ -10,7 +10,6 @@ Usage: python -m paper_figures.fig04_flow_rules [OUT_DIR] [--quick]
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -91,8 +90,3 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     fig.suptitle(f"Moisturizing milk, t = 1/3 s, rheometer fit eta={m.eta:.3g} Pa s^n, n={m.n:.3g}, "
                  f"sigma_y={m.sigma_y:.3g} Pa; {disc}; blue: footage only, red: simulation only", fontsize=9)
     return [save_figure(fig, Path(out_dir) / "fig04_flow_rules.png")]
-
-
-if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    print(make(args[0] if args else "docs/figures", quick="--quick" in sys.argv)[0])

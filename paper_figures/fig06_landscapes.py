@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from paper_figures._landscape_data import landscapes, pick_pairs
-from paper_figures._plot import Context, MissingData, pyplot
+from paper_figures._landscape_data import matched_pairs
+from paper_figures._plot import Context, pyplot
 
 NAMES = ("eta", "n", "sigma_Y")
 MAX_PAIRS = 4
@@ -45,13 +45,9 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     from studies import landscapes as LS
 
     context = context or Context()
-    data = landscapes(out_dir, quick, context, "fig06")
+    data, hw, pairs = matched_pairs(out_dir, quick, context, "fig06", MAX_PAIRS)
     grid = int(data["config"]["grid"])
     offsets = np.asarray(data["offsets"], dtype=float)
-    hw = float(np.max(np.abs(offsets)))
-    pairs = pick_pairs(data["pairs"], MAX_PAIRS)
-    if not pairs:
-        raise MissingData("the landscape study has no matched landscape; run `virheo study landscapes --out DIR`")
     plt = pyplot()
     fig, axes = plt.subplots(2, len(pairs), figsize=(3.0 * len(pairs) + 0.6, 6.2), dpi=100, squeeze=False)
     fine = 41

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from paper_figures._landscape_data import landscapes, pick_pairs
-from paper_figures._plot import Context, MissingData, pyplot
+from paper_figures._landscape_data import matched_pairs
+from paper_figures._plot import Context, pyplot
 
 NAMES = ("d eta", "d n", "d sigma_Y")
 MAX_PAIRS = 3
@@ -35,12 +35,8 @@ def in_plane_axis(q) -> np.ndarray:
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
 
     context = context or Context()
-    data = landscapes(out_dir, quick, context, "fig07")
+    data, hw, pairs = matched_pairs(out_dir, quick, context, "fig07", MAX_PAIRS)
     offsets = np.asarray(data["offsets"], dtype=float)
-    hw = float(np.max(np.abs(offsets)))
-    pairs = pick_pairs(data["pairs"], MAX_PAIRS)
-    if not pairs:
-        raise MissingData("the landscape study has no matched landscape; run `virheo study landscapes --out DIR`")
     plt = pyplot()
     fig = plt.figure(figsize=(3.4 * len(pairs) + 0.8, 6.6), dpi=100)
     for col, rec in enumerate(pairs):

@@ -10,7 +10,6 @@ Usage: python -m paper_figures.fig10_setups_error [OUT_DIR] [--quick]
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 from paper_figures._plot import Context, flow_curves, pyplot
@@ -66,8 +65,3 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     fig.suptitle(f"{len(cases)} case(s), {generations} generations per stage: good (E_rel <= {GOOD}) with one setup "
                  f"{s['good_single']}/{s['cases']}, with two setups {s['good_two_setups']}/{s['cases']}", fontsize=9)
     return [save_figure(fig, Path(out_dir) / "fig10_setups_error.png")]
-
-
-if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    print(make(args[0] if args else "docs/figures", quick="--quick" in sys.argv)[0])

@@ -12,7 +12,6 @@ Usage: python -m paper_figures.fig13_table1_real [OUT_DIR] [--quick]
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -145,8 +144,3 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     fig.suptitle(f"Flow curves from the footage ({with_curve[0]['preset']} preset, {g} generations per stage) vs the "
                  f"rheometer; RMS of log10 stress over 1-100 1/s", fontsize=9)
     return [save_figure(fig, out_dir / "fig13_flow_curves.png"), table]
-
-
-if __name__ == "__main__":
-    args = [a for a in sys.argv[1:] if a != "--quick"]
-    print(make(args[0] if args else "docs/figures", quick="--quick" in sys.argv))
