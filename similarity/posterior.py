@@ -182,7 +182,7 @@ def _jobs(run: Run, X):
     jobs = []
     for x in X:
         m = Material.from_array(denormalize(np.clip(x, 0, 1)))
-        jobs += [(simulation_request(m, e, run.preset, run.simulator), i, e.frames)
+        jobs += [(simulation_request(m, e, run.preset.final, run.simulator), i, e.frames)
                  for e, i in zip(run.experiments, ids)]
     return jobs
 
@@ -205,7 +205,7 @@ def archive(run: Run, center, half_width: float) -> np.ndarray:
 
     templates = {}
     for e in run.experiments:
-        d = simulation_request(run.estimate, e, run.preset, run.simulator).to_dict()
+        d = simulation_request(run.estimate, e, run.preset.final, run.simulator).to_dict()
         for k in ("eta", "n", "sigma_y"):
             d.pop(k)
         templates[json.dumps(d, sort_keys=True, default=str)] = e
@@ -224,24 +224,21 @@ def archive(run: Run, center, half_width: float) -> np.ndarray:
 
 
 def discretisation_error(run: Run, executor=None) -> float:
-    """delta_disc: loss between the estimate simulated at the preset's cell width and at half of it."""
-    from dataclasses import replace
-
+    """delta_disc: loss between the estimate simulated at the run's final discretisation (the one of its
+    reported loss) and at half its cell width."""
     from mpm import batch
     from mpm.loss import video_loss
-    from similarity.estimate import simulated_frames
+    from similarity.presets import Discretisation, simulation_request
 
-    cell = run.preset.cell_mm
-    if cell is None:
-        from mpm.solver import DEFAULT_CELL_MM
+    model = run.preset.final.resolved()
+    fine = Discretisation(model.cell_mm / 2.0, model.ppc)
 
-        cell = DEFAULT_CELL_MM
-    fine = replace(run.preset, name=run.preset.name + "-fine", cell_mm=float(cell) / 2.0)
-    coarse = simulated_frames(run.estimate, run.experiments, preset=run.preset, store=run.store,
-                              executor=executor, simulator=run.simulator)
-    refined = simulated_frames(run.estimate, run.experiments, preset=fine, store=run.store,
-                               executor=executor if executor is not None else batch.InlineExecutor(),
-                               simulator=run.simulator)
+    def frames(disc, ex):
+        reqs = [simulation_request(run.estimate, e, disc, run.simulator) for e in run.experiments]
+        return [r.silhouettes if r.ok else None for r in batch.evaluate(reqs, store=run.store, executor=ex)]
+
+    coarse = frames(model, executor if executor is not None else batch.InlineExecutor())
+    refined = frames(fine, executor if executor is not None else batch.InlineExecutor())
     vals = [video_loss(a, b) for a, b in zip(coarse, refined) if a is not None and b is not None]
     return float(np.mean(vals)) if vals else 0.0
 

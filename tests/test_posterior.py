@@ -187,3 +187,24 @@ def test_corrupt_backend_is_a_one_line_error(tmp_path):
 def test_gaussian_check_helper_is_truncated_to_the_box():
     post = gaussian_moments_check([0.02, 0.5, 0.5], np.eye(3) * 1e-3, nwalkers=16, seed=0, min_ess=200)
     assert post.samples.min() >= 0.0 and post.mean[0] > 0.02  # truncation at 0 pushes the mean up
+
+
+def test_posterior_simulates_at_the_estimates_final_discretisation():
+    """A coarse-to-fine run's posterior (emulator jobs, store archive, delta_disc) is built at the discretisation
+    of its reported loss, the preset's finishing one, not at the coarse search model."""
+    from types import SimpleNamespace
+
+    from mpm import batch
+    from mpm.camera import Camera
+    from similarity import posterior
+    from similarity.presets import get_preset
+
+    preset = get_preset("footage")
+    final = preset.final.resolved()
+    assert final.cell_mm != preset.cell_mm  # the test means something only for a coarse-to-fine preset
+    exp = SimpleNamespace(width_mm=30.0, height_mm=20.0, density=1000.0, depth_mm=40.0, camera=Camera.default(),
+                          frames=np.zeros((8, 54, 96), bool), name="e")
+    run = SimpleNamespace(experiments=[exp, exp], preset=preset, simulator=batch.DEFAULT_SIMULATOR)
+    jobs = posterior._jobs(run, np.full((2, 3), 0.5))
+    assert len(jobs) == 4
+    assert {(j[0].cell_mm, j[0].ppc) for j in jobs} == {(final.cell_mm, final.ppc)}
