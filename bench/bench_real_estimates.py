@@ -1,80 +1,130 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
-    python bench/bench_real_estimates.py [--cell-mm 3] [--generations 12] [--workers 2] [--store PATH]
+    python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--only lotion milk] [--workers 2]
 
-For each material: Algorithm 1 on its two shared setups (stage 1 from the centre on setup 1, stage 2 on
-both), at a reduced fidelity (cell width and generations given); then our estimate and the paper's (Table 1)
-are both scored with the default forward model (mean loss over the two setups, eq. 3), and both flow curves
-against the rheometer (RMS of log10 stress over 1-100 1/s). Prints a markdown table; resumable via the store.
+For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
+okonomiyaki, lotion) runs unless ROOT/<slug>/result.json already holds a finished run (then it is only scored;
+a killed run resumes from its store). Each run is then scored: our estimate and the paper's (Table 1) under
+the same forward model as the run's reported loss (mean eq.-3 loss over the two setups), and both flow curves
+against the rheometer (RMS of log10 stress over 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1
+(one-setup) estimate's RMS, the wall time, the CPU time of the estimate and its worker processes, and the
+load average. Prints a markdown table and writes ROOT/real_estimates.json.
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
+import resource
+import sys
 import time
 from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mpm import batch
-from mpm import experiment as xp
-from mpm.datasets import manifest, real_world_dir, require_data_dir
-from mpm.store import Store
-from similarity import estimate as E
-from similarity.space import Material
-from surrogate.rheometer import MATERIALS, log_stress_rms, read_flow_curve
+import numpy as np  # noqa: E402
+
+SLUGS = {"Japanese thickened Worcestershire sauce": "worcestershire", "moisturizing milk": "milk",
+         "Japanese cabbage pancake sauce": "okonomiyaki", "lotion": "lotion"}
+
+
+def _cpu_seconds() -> float:
+    """CPU seconds of this process and its finished children (the estimate's worker processes)."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def _material(d: dict):
+    from similarity.space import Material
+
+    return Material(float(d["eta"]), float(d["n"]), float(d["sigma_y"]))
+
+
+def score(out: Path, paper, curve, workers: int) -> dict:
+    """Loss of our estimate and the paper's under the run's final forward model, and their flow-curve RMS."""
+    from mpm import batch
+    from similarity.posterior import load_run
+    from similarity.presets import simulation_request
+    from surrogate.rheometer import log_stress_rms
+
+    run = load_run(out)
+    result = run.result
+    model = run.preset.final
+
+    def loss(m):
+        jobs = [(simulation_request(m, e, model, run.simulator), batch.experiment_id(e.frames, e.name), e.frames)
+                for e in run.experiments]
+        with batch.local_executor(workers) as ex:
+            return float(np.mean(batch.evaluate_losses(jobs, store=run.store, executor=ex)))
+
+    stage1 = _material(result["stages"][0]["material"]) if result.get("stages") else None
+    return {
+        "setups": [f"{e.width_mm:g}x{e.height_mm:g}" for e in run.experiments],
+        "estimate": run.estimate.to_dict(), "paper": paper.to_dict(),
+        "discretisation": model.resolved().to_dict(),
+        "loss_ours": loss(run.estimate), "loss_paper": loss(paper),
+        "rms_ours": log_stress_rms(run.estimate, curve), "rms_paper": log_stress_rms(paper, curve),
+        "rms_stage1": None if stage1 is None else log_stress_rms(stage1, curve),
+        "stage1": None if stage1 is None else stage1.to_dict(),
+        "simulations": result.get("simulations_run"), "from_store": result.get("results_from_store"),
+        "wall_seconds": result.get("wall_seconds"),
+    }
 
 
 def main(argv=None) -> int:
+    from mpm import experiment as xp
+    from mpm.datasets import manifest, real_world_dir, require_data_dir
+    from similarity.space import Material
+    from studies.cli import main as virheo
+    from surrogate.rheometer import MATERIALS, read_flow_curve
+
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--cell-mm", type=float, default=3.0)
-    p.add_argument("--generations", type=int, default=12)
+    p.add_argument("--root", default=os.path.expanduser("~/.cache/virheometry/real_estimates"),
+                   help="one `virheo estimate` output folder per material is made (or reused) here")
+    p.add_argument("--preset", default="footage")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--store", default=os.path.expanduser("~/.cache/virheometry/bench_real_estimates"))
-    p.add_argument("--out", default="real_estimates.json")
-    p.add_argument("--only", nargs="*", default=None, help="material names (manifest spelling) to run")
+    p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
     args = p.parse_args(argv)
-    preset = dataclasses.replace(E.get_preset("demo"), name=f"real-{args.cell_mm}mm", cell_mm=args.cell_mm,
-                                 generations=args.generations)
-    store = Store(args.store)
+    root = Path(args.root)
     curves = {MATERIALS[f.name.split("_")[0]]: read_flow_curve(f)
               for f in sorted((require_data_dir() / "rheometer").glob("*.csv"))}
+    summary_path = root / "real_estimates.json"
+    results = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     rows = manifest()
-    results = json.loads(Path(args.out).read_text()) if Path(args.out).exists() else {}
-    print(f"# uptime: {os.popen('uptime').read().strip()}; preset {preset}")
-    with batch.local_executor(args.workers) as ex:
-        for name, curve in curves.items():
-            if name in results or (args.only and name not in args.only):
-                continue
-            mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
-            exps = [xp.load(Path(real_world_dir()) / r["folder"]) for r in mine]
-            r0 = mine[0]
-            paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
-            t0 = time.perf_counter()
-            est = E.estimate(exps, preset=preset, seed=args.seed, executor=ex, store=store)
-            wall = time.perf_counter() - t0
-            scores = {}
-            for label, m in (("ours", est.material), ("paper", paper)):
-                jobs = [(batch.request_for(m, e, density=e.density, depth_mm=e.depth_mm, camera=e.camera),
-                         batch.experiment_id(e.frames, e.name), e.frames) for e in exps]
-                scores[label] = float(np.mean(batch.evaluate_losses(jobs, store=store, executor=ex)))
-            results[name] = {
-                "setups": [f"{e.width_mm:g}x{e.height_mm:g}" for e in exps], "estimate": est.material.to_dict(),
-                "paper": paper.to_dict(), "loss_ours": scores["ours"], "loss_paper": scores["paper"],
-                "rms_ours": log_stress_rms(est.material, curve), "rms_paper": log_stress_rms(paper, curve),
-                "simulations": est.simulations, "wall_seconds": wall,
-            }
-            Path(args.out).write_text(json.dumps(results, indent=2))
-            print(name, json.dumps(results[name]), flush=True)
-    print("\n| material | setups | our estimate (eta, n, sigma_y) | paper | loss ours | loss paper | RMS ours | RMS paper |")
-    print("|---|---|---|---|---|---|---|---|")
-    for name, r in results.items():
-        f = lambda m: f"{m['eta']:.3g}, {m['n']:.3g}, {m['sigma_y']:.3g}"  # noqa: E731
-        print(f"| {name} | {' + '.join(r['setups'])} | {f(r['estimate'])} | {f(r['paper'])} | {r['loss_ours']:.4f} | "
-              f"{r['loss_paper']:.4f} | {r['rms_ours']:.3f} | {r['rms_paper']:.3f} |")
+    for name, slug in SLUGS.items():
+        if args.only and slug not in args.only:
+            continue
+        mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
+        folders = [str(Path(real_world_dir()) / r["folder"]) for r in mine]
+        out = root / slug
+        done = (out / "result.json").exists() and json.loads((out / "result.json").read_text()).get("preset") == args.preset
+        if not done:
+            load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
+            code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),
+                           "--workers", str(args.workers), "--quiet"])
+            if code:
+                return code
+            results.setdefault(slug, {})["measured"] = {
+                "wall_s": time.perf_counter() - t0, "cpu_s": _cpu_seconds() - c0,
+                "load_start": load, "load_end": os.getloadavg()[0]}
+        r0 = mine[0]
+        paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
+        _ = [xp.load(f) for f in folders]  # fail early on unreadable footage
+        results.setdefault(slug, {}).update(material=name, **score(out, paper, curves[name], args.workers))
+        root.mkdir(parents=True, exist_ok=True)
+        summary_path.write_text(json.dumps(results, indent=2))
+    f = lambda m: f"{m['eta']:.3g}, {m['n']:.3g}, {m['sigma_y']:.3g}"  # noqa: E731
+    print("| material | setups | our estimate (eta, n, sigma_y) | paper (Table 1) | loss ours | loss paper | "
+          "RMS one setup | RMS ours | RMS paper | simulations | wall |")
+    print("|---|---|---|---|---:|---:|---:|---:|---:|---:|---:|")
+    for slug, r in results.items():
+        if "estimate" not in r:
+            continue
+        wall = r.get("measured", {}).get("wall_s") or r.get("wall_seconds") or float("nan")
+        print(f"| {r['material']} | {' + '.join(r['setups'])} | {f(r['estimate'])} | {f(r['paper'])} | "
+              f"{r['loss_ours']:.4f} | {r['loss_paper']:.4f} | {r['rms_stage1']:.3f} | {r['rms_ours']:.3f} | "
+              f"{r['rms_paper']:.3f} | {r['simulations']} | {wall / 60:.0f} min |")
     return 0
 
 
