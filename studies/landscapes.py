@@ -61,6 +61,7 @@ class StudyConfig:
     preset: str = "demo"
     seed: int = 0
     density: float = 1000.0
+    region: tuple | None = None  # SI box ((eta_lo, eta_hi), (n_lo, n_hi), (sy_lo, sy_hi)) of the materials; None: the space
 
     def check(self) -> "StudyConfig":
         if self.materials < 1 or self.setups_per_material < 1:
@@ -73,7 +74,33 @@ class StudyConfig:
             if not 0 < v <= 0.2:
                 raise ValueError(f"{name}={v} must lie in (0, 0.2] (normalised material space)")
         E.get_preset(self.preset)
+        if self.region is not None:
+            self.region_box()
         return self
+
+    def region_box(self) -> tuple[np.ndarray, np.ndarray]:
+        """Normalised corners (lo, hi) of the box the materials are drawn from: ``region`` within the margin."""
+        lo, hi = np.full(3, self.margin), np.full(3, 1.0 - self.margin)
+        if self.region is None:
+            return lo, hi
+        r = np.asarray(self.region, dtype=float)
+        if r.shape != (3, 2) or not np.all(np.isfinite(r)) or np.any(r[:, 0] >= r[:, 1]):
+            raise ValueError("region must give a range lo:hi with lo < hi for each of eta, n, sigma_y")
+        a, b = np.maximum(lo, normalize(r[:, 0])), np.minimum(hi, normalize(r[:, 1]))
+        if np.any(b - a < 1e-3):
+            names = ", ".join(k for k, bad in zip(("eta", "n", "sigma_y"), b - a < 1e-3) if bad)
+            raise ValueError(f"region leaves no room for materials in {names}: probes {self.margin:.2f} "
+                             "(normalised) either side must stay inside the material space")
+        return a, b
+
+    def to_dict(self) -> dict:
+        """The configuration as stored in study.json (``region`` only when set)."""
+        d = asdict(self)
+        if self.region is None:
+            del d["region"]
+        else:
+            d["region"] = [list(map(float, r)) for r in self.region]
+        return d
 
     @property
     def margin(self) -> float:
@@ -88,11 +115,12 @@ class Pair:
 
 
 # -- sampling ----------------------------------------------------------------------------------------
-def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float = 0.3) -> tuple[np.ndarray, float]:
-    """``count`` points in [margin, 1 - margin]^3 by Poisson-disk sampling (scipy.stats.qmc.PoissonDisk).
+def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float = 0.3, box=None) -> tuple[np.ndarray, float]:
+    """``count`` points in [margin, 1 - margin]^3 (or in ``box`` = (lo, hi) corners) by Poisson-disk
+    sampling (scipy.stats.qmc.PoissonDisk).
 
     Returns the points (count, 3) and the minimum distance they respect (the radius, shrunk by 15 %
-    steps until ``count`` points fit, times the box's side).
+    steps until ``count`` points fit, times the box's shortest side).
     """
     from scipy.stats import qmc
 
@@ -106,8 +134,9 @@ def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float 
         if len(pts) >= count:
             break
         r *= 0.85
-    side = 1.0 - 2.0 * margin
-    return margin + side * pts[:count], r * side
+    lo, hi = (np.full(3, margin), np.full(3, 1.0 - margin)) if box is None else (np.asarray(box[0], float), np.asarray(box[1], float))
+    side = hi - lo
+    return lo + side * pts[:count], r * float(np.min(side))
 
 
 def random_setups(count: int, rng: np.random.Generator) -> list[Setup]:
@@ -128,8 +157,8 @@ def grid_offsets(size: int, half_width: float) -> np.ndarray:
 
 
 def sample_pairs(config: StudyConfig) -> list[Pair]:
-    """The study's (M, S) pairs: Poisson-disk materials, each with its own random setups."""
-    pts, _ = poisson_disk(config.materials, config.seed, config.margin)
+    """The study's (M, S) pairs: Poisson-disk materials (in ``config.region``), each with its own random setups."""
+    pts, _ = poisson_disk(config.materials, config.seed, box=config.region_box())
     rng = np.random.default_rng(config.seed)
     pairs = []
     for u in pts:
@@ -158,7 +187,7 @@ def match(material: Material, offsets, losses, c_pa=C_SEARCH, d0: float = theta_
 def _prepare(out: Path, config: StudyConfig) -> list[Pair]:
     out.mkdir(parents=True, exist_ok=True)
     pairs = sample_pairs(config)
-    meta = {"format": FORMAT, "config": asdict(config),
+    meta = {"format": FORMAT, "config": config.to_dict(),
             "pairs": [{"material": p.material.to_dict(), "setup": p.setup.to_dict()} for p in pairs]}
     path = out / STUDY_FILE
     if path.exists():
@@ -224,7 +253,7 @@ def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batc
         else:
             rec["match"] = None
         records.append(rec)
-    result = {"format": FORMAT, "config": asdict(config), "offsets": block.tolist(),
+    result = {"format": FORMAT, "config": config.to_dict(), "offsets": block.tolist(),
               "fd_stencil": probes.tolist(), "pairs": records, "simulations": len({j[0].key for j in jobs}) + len(pairs),
               "wall_seconds": time.perf_counter() - t0}
     write_json(out / RESULT_FILE, result)

@@ -14,6 +14,18 @@ def _common(p, default_out: str) -> None:
     add_run_options(p, default_out=default_out, generations=False)
 
 
+def region(text: str) -> tuple:
+    """argparse ``type`` for ``--region``: three ranges lo:hi (eta, n, sigma_y)."""
+    parts = text.split(",")
+    try:
+        box = tuple(tuple(float(v) for v in part.split(":")) for part in parts)
+    except ValueError:
+        box = ()
+    if len(box) != 3 or any(len(r) != 2 for r in box):
+        raise argparse.ArgumentTypeError(f"'{text}' is not three ranges lo:hi for eta, n, sigma_y (e.g. 0:8,0.3:1,0:20)")
+    return box
+
+
 def register(study_subparsers) -> None:
     """Add ``landscapes`` and ``conditioning`` to the ``study`` sub-command's parsers."""
     p = study_subparsers.add_parser(
@@ -28,6 +40,9 @@ def register(study_subparsers) -> None:
                    help="half-width of the landscape block, normalised (default 0.05)")
     p.add_argument("--plots", type=integer, default=3, metavar="N", help="Fig. 6-style PNGs of the first N pairs (default 3)")
     p.add_argument("--seed", type=integer, default=0, help="seed of the materials and setups (default 0)")
+    p.add_argument("--region", type=region, default=None, metavar="ETA_LO:ETA_HI,N_LO:N_HI,SY_LO:SY_HI",
+                   help="draw the materials from this box only (SI: Pa s^n, -, Pa), e.g. 0:8,0.3:1,0:20 for thin, "
+                   "weakly yielding materials (default: the whole material space)")
     _common(p, "./virheo-landscapes")
     p.set_defaults(func=run_landscapes)
 
@@ -46,7 +61,8 @@ def run_landscapes(args: argparse.Namespace) -> int:
 
     check_run_options(args)
     config = LS.StudyConfig(materials=args.materials, setups_per_material=args.setups, grid=args.grid,
-                            half_width=args.half_width, fd_step=args.fd_step, preset=args.preset, seed=args.seed).check()
+                            half_width=args.half_width, fd_step=args.fd_step, preset=args.preset, seed=args.seed,
+                            region=args.region).check()
     if args.plots < 0:
         raise ValueError(f"--plots {args.plots} must be >= 0")
     with open_run(args) as run:
