@@ -317,8 +317,32 @@ def split(records, test_fraction: float, seed: int) -> tuple[list[int], list[int
     return train, test
 
 
-def fit_theta(study: dict, *, test_fraction: float = 0.3, seed: int = 0, name: str = "fitted"):
-    """Fit Theta to a study's matched landscapes; returns (ThetaMap, report dict).
+def matched_records(studies) -> list[dict]:
+    """The matched landscapes of one or more finished studies (``load`` results), which must share
+    the landscape block and the FD step so that their matches and normals are comparable."""
+    studies = [studies] if isinstance(studies, dict) else list(studies)
+    if not studies:
+        raise ValueError("no landscape study given")
+    keys = ("grid", "half_width", "fd_step")
+    first = {k: studies[0]["config"][k] for k in keys}
+    for st in studies[1:]:
+        other = {k: st["config"][k] for k in keys}
+        if other != first:
+            raise ValueError(f"landscape studies differ in grid, half-width or FD step ({first} vs {other}); "
+                             "fit them separately")
+    return [r for st in studies for r in st["pairs"] if r.get("match") is not None]
+
+
+def input_domain() -> tuple[np.ndarray, np.ndarray]:
+    """Bounds of the Theta inputs [eta, n, sigma_y, H, W] (SI, metres): the material space times the setup range."""
+    from similarity.space import LOWER, UPPER
+
+    lo, hi = (v * 1e-3 for v in SETUP_RANGE_MM)
+    return np.concatenate([LOWER, [lo, lo]]), np.concatenate([UPPER, [hi, hi]])
+
+
+def fit_theta(studies, *, test_fraction: float = 0.3, seed: int = 0, name: str = "fitted"):
+    """Fit Theta to the matched landscapes of one or more studies; returns (ThetaMap, report dict).
 
     The report gives the cross-validated error of the fit and, per landscape, the angle between the
     FD loss normal and the normals predicted through the fitted and the published maps, on the
@@ -326,20 +350,26 @@ def fit_theta(study: dict, *, test_fraction: float = 0.3, seed: int = 0, name: s
     """
     from surrogate.theta import load as load_theta
 
-    records = [r for r in study["pairs"] if r.get("match") is not None]
+    studies = [studies] if isinstance(studies, dict) else list(studies)
+    records = matched_records(studies)
     if len(records) < 3:
-        raise ValueError(f"the study has {len(records)} matched landscapes; the fit needs at least 3")
+        raise ValueError(f"the studies hold {len(records)} matched landscapes; the fit needs at least 3")
     train, test = split(records, test_fraction, seed)
-    if len(train) < 3:
-        raise ValueError(f"only {len(train)} landscapes left to fit after holding out {test_fraction:g}; lower --test-fraction")
     rows = [records[i] for i in train]
+    materials = [json.dumps(r["material"], sort_keys=True) for r in rows]
+    if len(set(materials)) < 3:
+        raise ValueError(f"only {len(set(materials))} materials left to fit after holding out {test_fraction:g}; "
+                         "lower --test-fraction")
     x = theta_fit.inputs([[r["material"][k] for k in ("eta", "n", "sigma_y")] for r in rows],
                          [r["setup"]["width_mm"] for r in rows], [r["setup"]["height_mm"] for r in rows])
     c = np.array([r["match"]["C_Pa"] for r in rows])
-    pipe, summary = theta_fit.fit(x, c)
-    cfg = study["config"]
-    attribution = (f"fitted by virheometry to {len(rows)} MPM landscapes (preset {cfg['preset']}, grid {cfg['grid']}, "
-                   f"half-width {cfg['half_width']}, FD step {cfg['fd_step']}, seed {cfg['seed']})")
+    pipe, summary = theta_fit.fit(x, c, np.unique(materials, return_inverse=True)[1], domain=input_domain())
+    cfgs = [st["config"] for st in studies]
+    cfg = cfgs[0]
+    seeds = ", ".join(str(c["seed"]) for c in cfgs)
+    attribution = (f"fitted by virheometry to {len(rows)} MPM landscapes of {summary['materials']} materials "
+                   f"(preset {'/'.join(sorted({c['preset'] for c in cfgs}))}, grid {cfg['grid']}, "
+                   f"half-width {cfg['half_width']}, FD step {cfg['fd_step']}, study seeds {seeds})")
     ours = theta_fit.to_theta_map(pipe, name=name, attribution=attribution)
     ref = load_theta("reference")
     report = {"fit": summary, "train": train, "test": test, "landscapes": []}
@@ -352,6 +382,8 @@ def fit_theta(study: dict, *, test_fraction: float = 0.3, seed: int = 0, name: s
     for label, idx in (("train", train), ("test", test)):
         if idx:
             report[f"median_angle_{label}"] = {
+                "landscapes": len(idx),
+                "materials": len({json.dumps(records[i]["material"], sort_keys=True) for i in idx}),
                 "matched": float(np.nanmedian(np.asarray(a_match)[idx])),
                 "fitted": float(np.nanmedian(a_ours[idx])) if np.any(np.isfinite(a_ours[idx])) else None,
                 "reference": float(np.nanmedian(a_ref[idx])) if np.any(np.isfinite(a_ref[idx])) else None,

@@ -6,8 +6,15 @@ and the reciprocal-polynomial fit as a scikit-learn ``Pipeline``.
 * :func:`best_match` evaluates it for a set of candidate normals (one per wall stress C = P L of the
   1D search; the caller computes them from the Poiseuille Hessian) and returns the best.
 * :func:`make_pipeline`: ten reciprocal features -> ``PolynomialFeatures(degree=2)`` ->
-  ``StandardScaler`` -> ``RidgeCV`` (regularisation chosen by leave-one-out cross-validation). The
-  target is the rate r = (C - C_lo) / (C_hi - C_lo) of :mod:`surrogate.theta`.
+  :class:`DomainScaler` -> ``Ridge``. The target is the rate r = (C - C_lo) / (C_hi - C_lo) of
+  :mod:`surrogate.theta`. :func:`fit` chooses the ridge's regularisation by leave-one-group-out
+  cross-validation, a group being the landscapes of one material, so the chosen alpha is the one
+  that predicts *unseen materials* best.
+* :class:`DomainScaler` standardises each monomial by its spread over the whole input domain (the
+  material space times the setup range), not over the training landscapes: the ridge penalty then
+  charges a term for what it contributes wherever the map is used. Monomials such as
+  1/sigma_y^2, whose values explode near sigma_y = 0 outside the sampled materials, are held small;
+  with training-set scaling they are cheap and the map extrapolates wildly.
 * :func:`to_theta_map` folds a fitted pipeline into the 66 coefficients of the published layout,
   :func:`pipeline_from_map` does the reverse, so a fitted map is saved with ``ThetaMap.save`` and
   read by ``surrogate.theta.load(path)`` unchanged.
@@ -18,14 +25,15 @@ the order of the published map.
 from __future__ import annotations
 
 import numpy as np
-from sklearn.linear_model import Ridge, RidgeCV
+from sklearn.linear_model import Ridge
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import FunctionTransformer, PolynomialFeatures, StandardScaler
 
 from surrogate.theta import N_COEFFS, ThetaMap, base_features, monomial_powers, monomial_weights
 
 D0 = 0.025  # eq. 43
-ALPHAS = np.logspace(-6, 3, 28)
+ALPHAS = np.logspace(-4, 4, 33)
+DOMAIN_SAMPLES = 20000
 
 
 # -- eq. 43 --------------------------------------------------------------------------------------------
@@ -72,13 +80,35 @@ def inputs(params, width_mm, height_mm) -> np.ndarray:
     return np.column_stack([p, np.asarray(height_mm, float) * 1e-3, np.asarray(width_mm, float) * 1e-3])
 
 
-def make_pipeline(sigma_eps: float = 1e-4, alphas=ALPHAS) -> Pipeline:
-    """Reciprocal features -> degree-2 monomials -> standardisation -> ridge with cross-validated alpha."""
+class DomainScaler(StandardScaler):
+    """``StandardScaler`` whose mean and spread are those of the monomials over the input domain,
+    rows [eta, n, sigma_y, H, W] uniform in the box ``lower`` .. ``upper`` (a fixed sample), whatever
+    the training rows are."""
+
+    def __init__(self, lower=None, upper=None, sigma_eps: float = 1e-4, samples: int = DOMAIN_SAMPLES, seed: int = 0):
+        super().__init__()
+        self.lower, self.upper, self.sigma_eps, self.samples, self.seed = lower, upper, sigma_eps, samples, seed
+
+    def fit(self, X, y=None, sample_weight=None):
+        lo, hi = np.asarray(self.lower, dtype=float), np.asarray(self.upper, dtype=float)
+        if lo.shape != (5,) or hi.shape != (5,) or np.any(hi <= lo):
+            raise ValueError("the input domain needs lower < upper for each of eta, n, sigma_y, H, W")
+        rng = np.random.default_rng(self.seed)
+        x = lo + (hi - lo) * rng.random((self.samples, 5))
+        z = PolynomialFeatures(degree=2).fit_transform(features(x, self.sigma_eps))
+        if z.shape[1] != np.shape(X)[1]:
+            raise ValueError(f"DomainScaler expects the {z.shape[1]} degree-2 monomials, got {np.shape(X)[1]} columns")
+        return super().fit(z)
+
+
+def make_pipeline(domain, sigma_eps: float = 1e-4, alpha: float = 1.0) -> Pipeline:
+    """Reciprocal features -> degree-2 monomials -> standardisation over ``domain`` = (lower, upper)
+    rows [eta, n, sigma_y, H, W] -> ridge with regularisation ``alpha``."""
     return Pipeline([
         ("reciprocal", FunctionTransformer(features, kw_args={"sigma_eps": sigma_eps})),
         ("poly", PolynomialFeatures(degree=2)),
-        ("scale", StandardScaler()),
-        ("ridge", RidgeCV(alphas=alphas)),
+        ("scale", DomainScaler(lower=domain[0], upper=domain[1], sigma_eps=sigma_eps)),
+        ("ridge", Ridge(alpha=alpha)),
     ])
 
 
@@ -127,24 +157,41 @@ def rate_of_stress(c_pa, c_extent_pa=(5.0, 500.0)) -> np.ndarray:
     return (np.asarray(c_pa, dtype=float) - lo) / (hi - lo)
 
 
-def fit(x, c_pa, sigma_eps: float = 1e-4, c_extent_pa=(5.0, 500.0)) -> tuple[Pipeline, dict]:
+def fit(x, c_pa, groups=None, *, domain, sigma_eps: float = 1e-4, c_extent_pa=(5.0, 500.0),
+        alphas=ALPHAS) -> tuple[Pipeline, dict]:
     """Fit Theta to inputs ``x`` (k, 5) and best-matching wall stresses ``c_pa`` (k,).
 
-    Returns the pipeline and a summary: alpha, the leave-one-out RMS error of the rate and of C [Pa].
+    ``groups`` (k,) labels the landscapes of one material (default: each landscape its own); alpha is
+    the one of ``alphas`` with the smallest leave-one-group-out RMS error of C. ``domain`` = (lower,
+    upper) bounds of [eta, n, sigma_y, H, W] (SI, metres) over which the monomials are standardised.
+    Returns the pipeline and a summary: alpha, the leave-one-group-out RMS error of the rate and of C [Pa].
     """
     x = np.atleast_2d(np.asarray(x, dtype=float))
     y = rate_of_stress(c_pa, c_extent_pa)
-    if len(x) != len(y) or len(x) < 3:
-        raise ValueError(f"need at least 3 matched landscapes with inputs and targets, got {len(x)} and {len(y)}")
-    pipe = make_pipeline(sigma_eps)
-    lin = pipe.named_steps["ridge"]
-    lin.set_params(store_cv_results=True) if "store_cv_results" in lin.get_params() else lin.set_params(store_cv_values=True)
+    groups = np.arange(len(y)) if groups is None else np.asarray(groups)
+    if len(x) != len(y) or len(groups) != len(y):
+        raise ValueError(f"inputs, targets and groups differ in length ({len(x)}, {len(y)}, {len(groups)})")
+    labels = np.unique(groups)
+    if len(labels) < 3:
+        raise ValueError(f"need matched landscapes of at least 3 materials, got {len(labels)}")
+    pipe = make_pipeline(domain, sigma_eps)
+    scale = pipe[:3].fit(x)  # the scaler does not depend on the training rows
+    z = scale.transform(x)
+    alphas = np.asarray(alphas, dtype=float)
+    sq = np.zeros(len(alphas))
+    for g in labels:  # ridge with intercept for every alpha at once, through the SVD of the centred rows
+        test = groups == g
+        zm, ym = z[~test].mean(axis=0), y[~test].mean()
+        u, sv, vt = np.linalg.svd(z[~test] - zm, full_matrices=False)
+        uy = u.T @ (y[~test] - ym)
+        coef = (vt.T * sv) @ (uy[:, None] / (sv[:, None] ** 2 + alphas[None]))  # (features, alphas)
+        r = ym + (z[test] - zm) @ coef - y[test][:, None]
+        sq += np.sum(r * r, axis=0)
+    best = int(np.argmin(sq))
+    pipe.set_params(ridge__alpha=float(alphas[best]))
     pipe.fit(x, y)
-    cv = getattr(lin, "cv_results_", None)
-    if cv is None:
-        cv = lin.cv_values_
-    loo = np.asarray(cv)[:, list(lin.alphas).index(lin.alpha_)] if np.ndim(cv) == 2 else np.asarray(cv).ravel()
-    rms_rate = float(np.sqrt(np.mean(loo)))
+    rms_rate = float(np.sqrt(sq[best] / len(y)))
     span = c_extent_pa[1] - c_extent_pa[0]
-    return pipe, {"alpha": float(lin.alpha_), "loo_rms_rate": rms_rate, "loo_rms_C_Pa": rms_rate * span,
-                  "samples": int(len(y)), "target_rms_C_Pa": float(np.std(y) * span)}
+    return pipe, {"alpha": float(alphas[best]), "cv_rms_rate": rms_rate, "cv_rms_C_Pa": rms_rate * span,
+                  "cv": "leave one material out", "samples": int(len(y)), "materials": int(len(labels)),
+                  "target_rms_C_Pa": float(np.std(y) * span)}

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from studies.cli import main
-from studies.landscapes import grid_offsets
+from studies.landscapes import grid_offsets, input_domain
 from surrogate import theta_fit as F
 from surrogate.theta import ThetaMap, load
 
@@ -29,13 +29,43 @@ def test_fitted_pipeline_saves_in_the_published_layout(tmp_path):
     ref = load("reference")
     x = _inputs(120, seed=2)
     c = ref.wall_stress(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
-    pipe, summary = F.fit(x, c)
+    pipe, summary = F.fit(x, c, domain=input_domain())
     assert summary["samples"] == 120 and summary["alpha"] > 0
     path = F.to_theta_map(pipe, name="mine").save(tmp_path / "theta.json")
     mine = load(path)
     assert mine.name == "mine"
     rate = mine.rate(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
     np.testing.assert_allclose(rate, pipe.predict(x), rtol=1e-8, atol=1e-10)
+
+
+def test_domain_scaled_fit_extrapolates_to_weak_materials():
+    """Fitted on materials with eta >= 2 Pa s^n and sigma_y >= 3 Pa only, the map still predicts a smooth
+    wall stress for thin, weakly yielding ones: monomials that explode there (1/sigma_y^2, ...) are
+    standardised over the whole domain, so the ridge penalty keeps them small."""
+    rng = np.random.default_rng(0)
+    k = 60
+    x = np.column_stack([rng.uniform(2, 30, k), rng.uniform(0.3, 1, k), rng.uniform(3, 40, k),
+                         rng.uniform(0.02, 0.07, k), rng.uniform(0.02, 0.07, k)])
+    truth = lambda x: 10 + 1200 * x[:, 3] + 300 * x[:, 4] + 0.8 * x[:, 0] + 20 * x[:, 1]  # noqa: E731
+    pipe, summary = F.fit(x, truth(x) + rng.normal(0, 2, k), np.repeat(np.arange(20), 3), domain=input_domain())
+    assert summary["materials"] == 20 and summary["cv_rms_C_Pa"] < 4
+    weak = np.column_stack([rng.uniform(0.3, 2, 50), rng.uniform(0.3, 1, 50), rng.uniform(0.01, 3, 50),
+                            rng.uniform(0.02, 0.07, 50), rng.uniform(0.02, 0.07, 50)])
+    c = F.to_theta_map(pipe).wall_stress(weak[:, 0], weak[:, 1], weak[:, 2], weak[:, 4] * 1e3, weak[:, 3] * 1e3)
+    assert np.max(np.abs(c - truth(weak))) < 8.0
+
+
+def test_regularisation_is_chosen_by_leaving_materials_out():
+    rng = np.random.default_rng(1)
+    x = _inputs(45, seed=3)
+    groups = np.repeat(np.arange(15), 3)
+    noise = 50 + 20 * rng.normal(size=45)  # no relation to the inputs: the strongest regularisation wins
+    assert F.fit(x, noise, groups, domain=input_domain())[1]["alpha"] >= 100
+    ref = load("reference")
+    c = ref.wall_stress(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
+    assert F.fit(x, c, groups, domain=input_domain())[1]["alpha"] < 1.0
+    with pytest.raises(ValueError, match="3 materials"):
+        F.fit(x[:6], c[:6], groups[:6], domain=input_domain())
 
 
 def _unit(v):

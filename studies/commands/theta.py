@@ -16,7 +16,8 @@ def register(subparsers) -> None:
                        "its best plane-Poiseuille setup (eq. 43, 1D search over P L), fit the reciprocal degree-2 "
                        "polynomial with cross-validated ridge regularisation and save it in the published JSON layout "
                        "(usable as 'virheo design --theta FILE'). Whole materials are held out for testing.")
-    f.add_argument("study", metavar="STUDY", help="landscape study folder")
+    f.add_argument("study", metavar="STUDY", nargs="+",
+                   help="landscape study folder(s); several studies with the same grid, half-width and FD step are fitted together")
     f.add_argument("--out", required=True, metavar="theta.json", help="where to write the fitted map")
     f.add_argument("--test-fraction", type=float, default=0.3, metavar="F",
                    help="fraction of the study's materials held out of the fit (default 0.3)")
@@ -31,11 +32,11 @@ def run_fit(args: argparse.Namespace) -> int:
     from studies import landscapes as LS
     from studies.report import write_json
 
-    study = LS.load(args.study)
+    studies = [LS.load(s) for s in args.study]
     out = Path(args.out)
     if not out.parent.resolve().is_dir():
         raise FileNotFoundError(f"--out: folder {out.parent} does not exist")
-    theta, report = LS.fit_theta(study, test_fraction=args.test_fraction, seed=args.seed, name=args.name)
+    theta, report = LS.fit_theta(studies, test_fraction=args.test_fraction, seed=args.seed, name=args.name)
     theta.save(out)
     from surrogate.theta import load
 
@@ -43,13 +44,14 @@ def run_fit(args: argparse.Namespace) -> int:
     report_path = out.with_name(out.stem + "_report.json")
     write_json(report_path, report)
     s = report["fit"]
-    print(f"Theta fitted to {s['samples']} landscapes: ridge alpha {s['alpha']:.3g}, leave-one-out RMS error of "
-          f"C = P L {s['loo_rms_C_Pa']:.3g} Pa (spread of the targets {s['target_rms_C_Pa']:.3g} Pa)")
+    print(f"Theta fitted to {s['samples']} landscapes of {s['materials']} materials: ridge alpha {s['alpha']:.3g}, "
+          f"leave-one-material-out RMS error of C = P L {s['cv_rms_C_Pa']:.3g} Pa (spread of the targets "
+          f"{s['target_rms_C_Pa']:.3g} Pa)")
     for label in ("train", "test"):
         m = report.get(f"median_angle_{label}")
         if m:
             fmt = lambda v: "n/a" if v is None else f"{v:.1f}"
-            print(f"  median angle to the FD loss normal on {label} landscapes: matched {fmt(m['matched'])} deg, "
+            print(f"  median angle to the FD loss normal on {m['landscapes']} {label} landscapes: matched {fmt(m['matched'])} deg, "
                   f"fitted map {fmt(m['fitted'])} deg, published map {fmt(m['reference'])} deg")
     d = report["design"]
     if d["records"]:
