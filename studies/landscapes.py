@@ -17,7 +17,10 @@ plus its reference.
 
 Matching: for each candidate wall stress C = P L of the 1D search (P fixed, as in
 :mod:`surrogate.theta`) the plane-Poiseuille loss normal is computed (:func:`similarity.normals.normals_at`)
-and scored against the landscape by eq. 43; the best C is the target of the Theta fit.
+and scored by eq. 43 against the landscape, refined by trilinear interpolation to a spacing of d0 / 2
+(:func:`surrogate.theta_fit.refined_landscape`); the best C is the target of the Theta fit.
+``virheo theta fit`` re-matches every landscape from its stored losses, so studies written before a
+change of the matching are fitted consistently.
 
 Folder layout: ``study.json`` (the configuration, materials and setups), ``landscapes.json`` (per pair:
 loss values, Hessian, spectrum, matching), ``landscape_*.png`` (Fig. 6-style slices).
@@ -175,10 +178,11 @@ def poiseuille_normals(material: Material, c_pa=C_SEARCH) -> np.ndarray:
     return np.where((c > material.sigma_y)[:, None], q, np.nan)
 
 
-def match(material: Material, offsets, losses, c_pa=C_SEARCH, d0: float = theta_fit.D0) -> dict:
-    """The best wall stress C of the 1D search for one landscape (eq. 43) and its normal."""
+def match(material: Material, losses, grid: int, half_width: float, c_pa=C_SEARCH, d0: float = theta_fit.D0) -> dict:
+    """The best wall stress C of the 1D search for one ``grid``^3 landscape (eq. 43, on the landscape
+    refined by :func:`surrogate.theta_fit.refined_landscape`) and its normal."""
     q = poiseuille_normals(material, c_pa)
-    i, scores = theta_fit.best_match(offsets, losses, q, d0)
+    i, scores = theta_fit.best_match(*theta_fit.refined_landscape(losses, grid, half_width, d0), q, d0)
     return {"C_Pa": float(np.asarray(c_pa)[i]), "score": float(scores[i]), "q_pp": q[i].tolist(),
             "scores": [None if not np.isfinite(s) else float(s) for s in scores]}
 
@@ -246,7 +250,7 @@ def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batc
         else:
             rec |= {"hessian": None, "q_max": None, "eigenvalues": None, "condition": None}
         if np.any(np.isfinite(grid_losses)) and np.nanmax(grid_losses) > 0:
-            mt = match(p.material, block, grid_losses)
+            mt = match(p.material, grid_losses, config.grid, config.half_width)
             rec["match"] = mt
             if rec["q_max"] is not None:
                 rec["match"]["angle_fd_deg"] = float(angle_deg(rec["q_max"], mt["q_pp"]))
@@ -354,6 +358,8 @@ def fit_theta(studies, *, test_fraction: float = 0.3, seed: int = 0, name: str =
     records = matched_records(studies)
     if len(records) < 3:
         raise ValueError(f"the studies hold {len(records)} matched landscapes; the fit needs at least 3")
+    cfg = studies[0]["config"]
+    matches = [match(Material(**r["material"]), r["losses"], cfg["grid"], cfg["half_width"]) for r in records]
     train, test = split(records, test_fraction, seed)
     rows = [records[i] for i in train]
     materials = [json.dumps(r["material"], sort_keys=True) for r in rows]
@@ -362,22 +368,23 @@ def fit_theta(studies, *, test_fraction: float = 0.3, seed: int = 0, name: str =
                          "lower --test-fraction")
     x = theta_fit.inputs([[r["material"][k] for k in ("eta", "n", "sigma_y")] for r in rows],
                          [r["setup"]["width_mm"] for r in rows], [r["setup"]["height_mm"] for r in rows])
-    c = np.array([r["match"]["C_Pa"] for r in rows])
+    c = np.array([matches[i]["C_Pa"] for i in train])
     pipe, summary = theta_fit.fit(x, c, np.unique(materials, return_inverse=True)[1], domain=input_domain())
     cfgs = [st["config"] for st in studies]
-    cfg = cfgs[0]
-    seeds = ", ".join(str(c["seed"]) for c in cfgs)
+    seeds = ", ".join(str(k["seed"]) for k in cfgs)
+    presets = "/".join(sorted({k["preset"] for k in cfgs}))
     attribution = (f"fitted by virheometry to {len(rows)} MPM landscapes of {summary['materials']} materials "
-                   f"(preset {'/'.join(sorted({c['preset'] for c in cfgs}))}, grid {cfg['grid']}, "
+                   f"(preset {presets}, grid {cfg['grid']}, "
                    f"half-width {cfg['half_width']}, FD step {cfg['fd_step']}, study seeds {seeds})")
     ours = theta_fit.to_theta_map(pipe, name=name, attribution=attribution)
     ref = load_theta("reference")
     report = {"fit": summary, "train": train, "test": test, "landscapes": []}
     a_ours, a_ref = map_angles(records, ours), map_angles(records, ref)
-    a_match = [r["match"].get("angle_fd_deg", float("nan")) for r in records]
+    a_match = [float("nan") if r.get("q_max") is None else float(angle_deg(r["q_max"], mt["q_pp"]))
+               for r, mt in zip(records, matches)]
     for k, r in enumerate(records):
         report["landscapes"].append({"material": r["material"], "setup": r["setup"], "used_in_fit": k in set(train),
-                                     "C_matched_Pa": r["match"]["C_Pa"], "angle_matched_deg": a_match[k],
+                                     "C_matched_Pa": matches[k]["C_Pa"], "angle_matched_deg": a_match[k],
                                      "angle_fitted_deg": a_ours[k], "angle_reference_deg": a_ref[k]})
     for label, idx in (("train", train), ("test", test)):
         if idx:

@@ -54,6 +54,25 @@ def matching_score(offsets, losses, normals, d0: float = D0) -> np.ndarray:
     return np.sum(w * losses[ok], axis=-1) / np.sum(w, axis=-1)
 
 
+def refined_landscape(losses, grid: int, half_width: float, d0: float = D0) -> tuple[np.ndarray, np.ndarray]:
+    """A ``grid``^3 landscape (losses in the index order of a regular block, ``half_width`` either side)
+    interpolated trilinearly onto a block of spacing at most d0 / 2: (offsets (k, 3), losses (k,)).
+
+    Eq. 43 weighs each point by exp(-d/d0); on a coarse block (3^3 at spacing 2 d0) a handful of points
+    decide the score, which then jumps between plateaus as the candidate plane tilts. The silhouette
+    loss grows about linearly away from M (a cone), so linear interpolation keeps its shape; the
+    refined block gives the score the resolution of a dense landscape such as the paper's 8^3.
+    """
+    from scipy.interpolate import RegularGridInterpolator
+
+    values = np.asarray(losses, dtype=float).reshape(grid, grid, grid)
+    axis = half_width * np.linspace(-1.0, 1.0, grid)
+    fine = max(grid, int(np.ceil(2.0 * half_width / (0.5 * d0) - 1e-9)) + 1)
+    t = half_width * np.linspace(-1.0, 1.0, fine)
+    pts = np.stack(np.meshgrid(t, t, t, indexing="ij"), axis=-1).reshape(-1, 3)
+    return pts, RegularGridInterpolator((axis, axis, axis), values, method="linear")(pts)
+
+
 def best_match(offsets, losses, candidate_normals, d0: float = D0) -> tuple[int, np.ndarray]:
     """(index of the best candidate, all scores) of the 1D search; NaN normals (no flow) never win."""
     q = np.asarray(candidate_normals, dtype=float)
