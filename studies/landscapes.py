@@ -1,9 +1,10 @@
 """Loss-landscape studies of section 5: MPM landscapes, finite-difference loss normals, matching to the
 plane-Poiseuille normal (eq. 43) and the data that Theta is fitted to (section 5.5).
 
-A study draws materials M by Poisson-disk sampling in the normalised material space and, for each,
-setups S from the 1 mm grid. For each pair (M, S) the footage of M in S is emulated with the
-preset's forward model, and the loss L(M~, M; S) (eq. 3) is evaluated
+A study draws materials M by Poisson-disk sampling in the normalised material space (or in a box of
+it, ``StudyConfig.region``) and, for each, setups S from the 1 mm grid. For each pair (M, S) the
+footage of M in S is emulated with the preset's forward model, and the loss L(M~, M; S) (eq. 3) is
+evaluated
 
 * on a regular ``grid`` ^ 3 block of points M~ around M, ``half_width`` either side in normalised
   coordinates (the landscape of Fig. 6), and
@@ -19,8 +20,8 @@ Matching: for each candidate wall stress C = P L of the 1D search (P fixed, as i
 :mod:`surrogate.theta`) the plane-Poiseuille loss normal is computed (:func:`similarity.normals.normals_at`)
 and scored by eq. 43 against the landscape, refined by trilinear interpolation to a spacing of d0 / 2
 (:func:`surrogate.theta_fit.refined_landscape`); the best C is the target of the Theta fit.
-``virheo theta fit`` re-matches every landscape from its stored losses, so studies written before a
-change of the matching are fitted consistently.
+``virheo theta fit`` re-matches every landscape from its stored losses, so a fit never depends on the
+match stored in a study folder.
 
 Folder layout: ``study.json`` (the configuration, materials and setups), ``landscapes.json`` (per pair:
 loss values, Hessian, spectrum, matching), ``landscape_*.png`` (Fig. 6-style slices).
@@ -64,7 +65,7 @@ class StudyConfig:
     preset: str = "demo"
     seed: int = 0
     density: float = 1000.0
-    region: tuple | None = None  # SI box ((eta_lo, eta_hi), (n_lo, n_hi), (sy_lo, sy_hi)) of the materials; None: the space
+    region: tuple | None = None  # SI box ((eta_lo, eta_hi), (n_lo, n_hi), (sy_lo, sy_hi)); None: the space
 
     def check(self) -> "StudyConfig":
         if self.materials < 1 or self.setups_per_material < 1:
@@ -118,7 +119,8 @@ class Pair:
 
 
 # -- sampling ----------------------------------------------------------------------------------------
-def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float = 0.3, box=None) -> tuple[np.ndarray, float]:
+def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float = 0.3,
+                 box=None) -> tuple[np.ndarray, float]:
     """``count`` points in [margin, 1 - margin]^3 (or in ``box`` = (lo, hi) corners) by Poisson-disk
     sampling (scipy.stats.qmc.PoissonDisk).
 
@@ -137,7 +139,9 @@ def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float 
         if len(pts) >= count:
             break
         r *= 0.85
-    lo, hi = (np.full(3, margin), np.full(3, 1.0 - margin)) if box is None else (np.asarray(box[0], float), np.asarray(box[1], float))
+    if box is None:
+        box = (np.full(3, margin), np.full(3, 1.0 - margin))
+    lo, hi = np.asarray(box[0], dtype=float), np.asarray(box[1], dtype=float)
     side = hi - lo
     return lo + side * pts[:count], r * float(np.min(side))
 

@@ -65,7 +65,8 @@ def test_fit_on_two_studies_recovers_a_known_map(tmp_path, capsys):
     report = json.loads(out.with_name("theta_report.json").read_text())
     assert len(report["test"]) == 7 and report["fit"]["cv"] == "leave one material out"
     truth = {json.dumps(p["material"], sort_keys=True): p["C_true"] for p in a + b}
-    matched = np.array([r["C_matched_Pa"] / truth[json.dumps(r["material"], sort_keys=True)] for r in report["landscapes"]])
+    matched = np.array([r["C_matched_Pa"] / truth[json.dumps(r["material"], sort_keys=True)]
+                        for r in report["landscapes"]])
     assert np.median(np.abs(matched - 1)) < 0.1  # eq. 43 on the refined block finds the cone's C
     test = report["median_angle_test"]
     assert test["fitted"] < 3.0 and test["invalid_fitted"] == 0  # unseen materials: normals within degrees

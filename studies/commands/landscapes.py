@@ -22,7 +22,8 @@ def region(text: str) -> tuple:
     except ValueError:
         box = ()
     if len(box) != 3 or any(len(r) != 2 for r in box):
-        raise argparse.ArgumentTypeError(f"'{text}' is not three ranges lo:hi for eta, n, sigma_y (e.g. 0:8,0.3:1,0:20)")
+        raise argparse.ArgumentTypeError(f"'{text}' is not three ranges lo:hi for eta, n, sigma_y "
+                                         "(e.g. 0:8,0.3:1,0:20)")
     return box
 
 

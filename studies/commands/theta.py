@@ -17,7 +17,8 @@ def register(subparsers) -> None:
                        "polynomial with cross-validated ridge regularisation and save it in the published JSON layout "
                        "(usable as 'virheo design --theta FILE'). Whole materials are held out for testing.")
     f.add_argument("study", metavar="STUDY", nargs="+",
-                   help="landscape study folder(s); several studies with the same grid, half-width and FD step are fitted together")
+                   help="landscape study folder(s); studies with the same grid, half-width and FD step "
+                   "are fitted together")
     f.add_argument("--out", required=True, metavar="theta.json", help="where to write the fitted map")
     f.add_argument("--test-fraction", type=float, default=0.3, metavar="F",
                    help="fraction of the study's materials held out of the fit (default 0.3)")
@@ -51,7 +52,8 @@ def run_fit(args: argparse.Namespace) -> int:
         m = report.get(f"median_angle_{label}")
         if m:
             fmt = lambda v: "n/a" if v is None else f"{v:.1f}"
-            print(f"  median angle to the FD loss normal on {m['landscapes']} {label} landscapes: matched {fmt(m['matched'])} deg, "
+            print(f"  median angle to the FD loss normal on {m['landscapes']} {label} landscapes: "
+                  f"matched {fmt(m['matched'])} deg, "
                   f"fitted map {fmt(m['fitted'])} deg, published map {fmt(m['reference'])} deg")
     d = report["design"]
     if d["records"]:
