@@ -349,8 +349,11 @@ def input_domain() -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([LOWER, [lo, lo]]), np.concatenate([UPPER, [hi, hi]])
 
 
-def fit_theta(studies, *, test_fraction: float = 0.3, seed: int = 0, name: str = "fitted"):
+def fit_theta(studies, *, test_fraction: float = 0.3, seed: int = 0, name: str = "fitted", prior=None):
     """Fit Theta to the matched landscapes of one or more studies; returns (ThetaMap, report dict).
+
+    ``prior`` (a map or what :func:`surrogate.theta.load` accepts): fit the correction to that map, which
+    the regularisation shrinks towards zero, instead of a map of our own.
 
     The report gives the cross-validated error of the fit and, per landscape, the angle between the
     FD loss normal and the normals predicted through the fitted and the published maps, on the
@@ -373,14 +376,18 @@ def fit_theta(studies, *, test_fraction: float = 0.3, seed: int = 0, name: str =
     x = theta_fit.inputs([[r["material"][k] for k in ("eta", "n", "sigma_y")] for r in rows],
                          [r["setup"]["width_mm"] for r in rows], [r["setup"]["height_mm"] for r in rows])
     c = np.array([matches[i]["C_Pa"] for i in train])
-    pipe, summary = theta_fit.fit(x, c, np.unique(materials, return_inverse=True)[1], domain=input_domain())
+    prior = None if prior is None else load_theta(prior)
+    pipe, summary = theta_fit.fit(x, c, np.unique(materials, return_inverse=True)[1], domain=input_domain(),
+                                  prior=prior)
     cfgs = [st["config"] for st in studies]
     seeds = ", ".join(str(k["seed"]) for k in cfgs)
     presets = "/".join(sorted({k["preset"] for k in cfgs}))
     attribution = (f"fitted by virheometry to {len(rows)} MPM landscapes of {summary['materials']} materials "
                    f"(preset {presets}, grid {cfg['grid']}, "
                    f"half-width {cfg['half_width']}, FD step {cfg['fd_step']}, study seeds {seeds})")
-    ours = theta_fit.to_theta_map(pipe, name=name, attribution=attribution)
+    if prior is not None:
+        attribution += f" as a correction to the map '{prior.name}' ({prior.attribution})"
+    ours = theta_fit.to_theta_map(pipe, name=name, attribution=attribution, prior=prior)
     ref = load_theta("reference")
     report = {"fit": summary, "train": train, "test": test, "landscapes": []}
     a_ours, a_ref = map_angles(records, ours), map_angles(records, ref)

@@ -137,14 +137,17 @@ def _permutation(poly: PolynomialFeatures) -> np.ndarray:
 
 
 def to_theta_map(pipe: Pipeline, name: str = "fitted", attribution: str = "", c_extent_pa=(5.0, 500.0),
-                 p_pa_per_m: float = 2500.0) -> ThetaMap:
-    """The 66 published-layout coefficients of a fitted pipeline (scaler folded into the linear model)."""
+                 p_pa_per_m: float = 2500.0, prior: ThetaMap | None = None) -> ThetaMap:
+    """The 66 published-layout coefficients of a fitted pipeline (scaler folded into the linear model),
+    plus those of ``prior`` when the pipeline was fitted to the correction of a prior map."""
     poly, scale, lin = pipe.named_steps["poly"], pipe.named_steps["scale"], pipe.named_steps["ridge"]
     coef = np.asarray(lin.coef_, dtype=float).ravel() / scale.scale_
     intercept = float(lin.intercept_) - float(coef @ scale.mean_)
     perm = _permutation(poly)
     theta = coef[perm] / monomial_weights()  # stored monomials carry weight 1/(e_i! e_j!)
     theta[0] += intercept  # monomial 0 is the constant 1
+    if prior is not None:
+        theta = theta + prior.theta
     eps = pipe.named_steps["reciprocal"].kw_args["sigma_eps"]
     return ThetaMap(theta, name=name, attribution=attribution, sigma_eps=eps, c_extent_pa=tuple(c_extent_pa),
                     p_pa_per_m=p_pa_per_m)
@@ -177,16 +180,22 @@ def rate_of_stress(c_pa, c_extent_pa=(5.0, 500.0)) -> np.ndarray:
 
 
 def fit(x, c_pa, groups=None, *, domain, sigma_eps: float = 1e-4, c_extent_pa=(5.0, 500.0),
-        alphas=ALPHAS) -> tuple[Pipeline, dict]:
+        alphas=ALPHAS, prior: ThetaMap | None = None) -> tuple[Pipeline, dict]:
     """Fit Theta to inputs ``x`` (k, 5) and best-matching wall stresses ``c_pa`` (k,).
 
     ``groups`` (k,) labels the landscapes of one material (default: each landscape its own); alpha is
     the one of ``alphas`` with the smallest leave-one-group-out RMS error of C. ``domain`` = (lower,
     upper) bounds of [eta, n, sigma_y, H, W] (SI, metres) over which the monomials are standardised.
+    With a ``prior`` map the pipeline fits the correction r - r_prior, so the ridge shrinks the map
+    towards the prior instead of towards zero (:func:`to_theta_map` with the same prior adds it back).
     Returns the pipeline and a summary: alpha, the leave-one-group-out RMS error of the rate and of C [Pa].
     """
     x = np.atleast_2d(np.asarray(x, dtype=float))
     y = rate_of_stress(c_pa, c_extent_pa)
+    if prior is not None:
+        if prior.sigma_eps != sigma_eps or tuple(prior.c_extent_pa) != tuple(c_extent_pa):
+            raise ValueError(f"the prior map '{prior.name}' uses another sigma_eps or C extent")
+        y = y - prior.rate(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
     groups = np.arange(len(y)) if groups is None else np.asarray(groups)
     if len(x) != len(y) or len(groups) != len(y):
         raise ValueError(f"inputs, targets and groups differ in length ({len(x)}, {len(y)}, {len(groups)})")

@@ -68,6 +68,20 @@ def test_regularisation_is_chosen_by_leaving_materials_out():
         F.fit(x[:6], c[:6], groups[:6], domain=input_domain())
 
 
+def test_fit_with_a_prior_shrinks_towards_it():
+    """Fitted as a correction to the published map, a handful of landscapes that differ from it by a
+    constant move the whole map by that constant, and nothing else."""
+    ref = load("reference")
+    x = _inputs(24, seed=4)
+    c = ref.wall_stress(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3) + 3.0
+    pipe, _ = F.fit(x, c, np.repeat(np.arange(8), 3), domain=input_domain(), prior=ref)
+    mine = F.to_theta_map(pipe, prior=ref)
+    y = _inputs(500, seed=5)
+    diff = (mine.wall_stress(y[:, 0], y[:, 1], y[:, 2], y[:, 4] * 1e3, y[:, 3] * 1e3)
+            - ref.wall_stress(y[:, 0], y[:, 1], y[:, 2], y[:, 4] * 1e3, y[:, 3] * 1e3))
+    np.testing.assert_allclose(diff, 3.0, atol=0.05)
+
+
 def _unit(v):
     v = np.asarray(v, float)
     return v / np.linalg.norm(v, axis=-1, keepdims=True)

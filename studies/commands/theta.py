@@ -24,6 +24,9 @@ def register(subparsers) -> None:
                    help="fraction of the study's materials held out of the fit (default 0.3)")
     f.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
     f.add_argument("--name", default="fitted", help="name stored in the map")
+    f.add_argument("--prior", default=None, metavar="MAP",
+                   help="fit a correction to this map ('reference', 'fitted' or a JSON file) instead of a map of "
+                   "our own: the regularisation shrinks towards it (default: none)")
     f.add_argument("--compare", type=int, default=50, metavar="N",
                    help="random materials on which the second setups of the fitted and published maps are compared (default 50)")
     f.set_defaults(func=run_fit)
@@ -37,7 +40,8 @@ def run_fit(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if not out.parent.resolve().is_dir():
         raise FileNotFoundError(f"--out: folder {out.parent} does not exist")
-    theta, report = LS.fit_theta(studies, test_fraction=args.test_fraction, seed=args.seed, name=args.name)
+    theta, report = LS.fit_theta(studies, test_fraction=args.test_fraction, seed=args.seed, name=args.name,
+                                 prior=args.prior)
     theta.save(out)
     from surrogate.theta import load
 
