@@ -3,8 +3,9 @@
 Paper section 4 (eqs. 4-18) and appendix B (eqs. 52-57); SI units. Two flow rules, ``"paper"`` (eqs.
 14-18) and ``"yue2015"`` (von Mises), both "yield when alpha*||dev sigma|| > beta*sigma_y, L_v b_e =
 -c gamma_HB s_hat b_e" (``FlowRule``). numpy: stress, yield function, flow rate, the scalar solve of eq. 57
-and the return mapping. Taichi (``@ti.func``, 3x3, any float dtype): ``kirchhoff_stress``,
-``return_mapping``, ``is_plastic`` for the MPM kernels, and ``return_mapping_taichi`` over a numpy batch.
+and the return mapping. Taichi (``@ti.func``, 3x3, any float dtype): ``iso_factor``,
+``kirchhoff_stress`` and ``return_mapping`` for the MPM kernels, and ``return_mapping_taichi`` over a numpy
+batch.
 Python float literals inside the funcs take Taichi's ``default_fp``: keep data and default_fp alike.
 """
 
@@ -20,6 +21,7 @@ NEWTON_ITERATIONS = 8
 CBRT_ITERATIONS = 64  # cap of the Halley cube root (it doubles or halves per iteration far from the root)
 CBRT_TOL = 1e-5  # relative change at which the cube root stops (error left ~ CBRT_TOL^3)
 NEWTON_TOL = 1e-6  # early exit of the Taichi solve once a Newton step in log(e) is below this
+NO_WARM_START = 1e30  # log(e) start of a particle that was elastic last step: the solve starts at log(e_trial)
 SQRT2 = float(np.sqrt(2.0))
 SQRT2_3 = float(np.sqrt(2.0 / 3.0))
 
@@ -163,7 +165,7 @@ def return_mapping_np(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rule: s
 
 
 def is_plastic_np(be_trial, mu, sigma_y, flow_rule: str = "paper") -> np.ndarray:
-    """True where the trial state yields (eq. 15 > 0); numpy twin of the Taichi ``is_plastic``."""
+    """True where the trial state yields (eq. 15 > 0)."""
     be = np.asarray(be_trial, dtype=float)
     J = np.sqrt(np.linalg.det(be))
     s = _m(mu / J) * dev(be / _m(J ** (2.0 / 3.0)))  # eq. 13
@@ -205,20 +207,33 @@ def _ti_dev(a):
 
 
 @ti.func
-def kirchhoff_stress(be, kappa, mu):
-    """Kirchhoff tau = (kappa/2)(J^2 - 1) I + mu dev(bbar) (eqs. 10, 12); MPM force is -V_p tau grad w."""
-    det = be.determinant()
-    bbar = be * _ti_cbrt(1 / det)
-    return (0.5 * kappa * (det - 1.0)) * ti.Matrix(_IDENTITY) + mu * _ti_dev(bbar)
+def iso_factor(det):
+    """det(b_e)^(-1/3): bbar = iso_factor(det b_e) b_e is the isochoric part of b_e (eq. 10). The MPM kernels
+    keep it per particle: the return mapping keeps det b_e, so the factor of the trial state is the factor
+    of the new b_e, used again by the next step's stress and eq. 57."""
+    return _ti_cbrt(1 / det)
 
 
 @ti.func
-def _ti_solve_excess(e_trial, a, eta, n):
-    """Taichi twin of ``solve_excess`` (eq. 57): Newton on log(e), fixed budget, monotone."""
+def kirchhoff_stress(be, iso, kappa, mu):
+    """Kirchhoff tau = (kappa/2)(J^2 - 1) I + mu dev(bbar) (eqs. 10, 12), iso = ``iso_factor(det be)``;
+    the MPM force is -V_p tau grad w."""
+    det = be.determinant()
+    return (0.5 * kappa * (det - 1.0)) * ti.Matrix(_IDENTITY) + mu * _ti_dev(be * iso)
+
+
+@ti.func
+def _ti_solve_excess(e_trial, a, eta, n, s0):
+    """Taichi twin of ``solve_excess`` (eq. 57): Newton on s = log(e) from min(s0, log(e_trial)); returns s.
+
+    From above the root the iterates decrease monotonically (G is convex and increasing); from below (a warm
+    start s0: last step's log(e) of the particle) the first step lands above the root, and the rest is
+    monotone. G' lies between 1 and 1/n, so a start near the root converges in one or two steps.
+    """
     log_t = ti.log(e_trial)
     log_a = ti.log(a) - ti.log(eta) / n
     p = 1.0 / n
-    s = log_t
+    s = ti.min(s0, log_t)
     for _ in range(NEWTON_ITERATIONS):
         # G(s) = log(e^s + e^v) - log_t with v = log_a + p s; with d = v - s and r = e^-|d| <= 1:
         # G = max(s, v) + log(1 + r) - log_t, G' = (1 + p r)/(1 + r) (d <= 0) or (r + p)/(1 + r)
@@ -232,69 +247,59 @@ def _ti_solve_excess(e_trial, a, eta, n):
         s -= step
         if ti.abs(step) < NEWTON_TOL:  # quadratic convergence: the remaining error is ~step^2
             break
-    return ti.exp(s)
+    return s
 
 
 @ti.func
-def _ti_excess(be_trial, mu, sigma_y, yue: ti.template()):
-    """alpha*||s_trial|| - beta*sigma_y: the yield function of the trial state (eq. 15)."""
-    alpha, beta, c = ti.static(_COEFFICIENTS[bool(yue)])
-    det = be_trial.determinant()
-    x_trial = mu / ti.sqrt(det) * _ti_dev(be_trial * _ti_cbrt(1 / det)).norm()  # eq. 13
-    return alpha * x_trial - beta * sigma_y
+def return_mapping(be_trial, be_old, iso_old, mu, eta, n, sigma_y, dt, log_e0, yue: ti.template()):
+    """Plastic correction of the trial b_e (appendix B, eq. 57, old trace).
 
-
-@ti.func
-def is_plastic(be_trial, mu, sigma_y, yue: ti.template()):
-    """1 when the trial state yields (eq. 15 > 0), else 0 (ti.i32)."""
-    result = 0
-    if _ti_excess(be_trial, mu, sigma_y, yue) > 0:
-        result = 1
-    return result
-
-
-@ti.func
-def return_mapping(be_trial, be_old, mu, eta, n, sigma_y, dt, yue: ti.template()):
-    """New b_e after the plastic correction of the trial b_e (appendix B, eq. 57, old trace).
-
-    be_old: b_e before the elastic prediction; its isochoric trace enters eq. 57.
-    yue: Python bool (template), True selects flow_rule="yue2015". Isochoric: det is kept.
+    be_old: b_e before the elastic prediction, iso_old its ``iso_factor`` (its isochoric trace enters eq.
+    57); log_e0: start of the Newton solve in log(excess stress) (last step's result, or NO_WARM_START).
+    yue: Python bool (template), True selects flow_rule="yue2015". Isochoric: det is kept. Returns
+    (new b_e, its iso_factor, log(e) of the solve or NO_WARM_START when elastic, 1 if plastic else 0).
     """
     alpha, beta, c = ti.static(_COEFFICIENTS[bool(yue)])
     det = be_trial.determinant()
     J = ti.sqrt(det)
-    bbar = be_trial * _ti_cbrt(1 / det)
-    d = _ti_dev(bbar)
+    iso = iso_factor(det)
+    d = _ti_dev(be_trial * iso)
     x_trial = mu / J * d.norm()  # eq. 13
     e_trial = alpha * x_trial - beta * sigma_y  # eq. 15
     result = be_trial
+    log_e = e_trial * 0 + NO_WARM_START
+    plastic = 0
     if e_trial > 0:
-        T = be_old.trace() * _ti_cbrt(1 / be_old.determinant())  # tr(bbar_old)
+        T = be_old.trace() * iso_old  # tr(bbar_old)
         k = dt * mu / J * T / 3.0  # eq. 57
-        e = _ti_solve_excess(e_trial, alpha * c * k, eta, n)
-        x = (e + beta * sigma_y) / alpha
+        log_e = _ti_solve_excess(e_trial, alpha * c * k, eta, n, log_e0)
+        x = (ti.exp(log_e) + beta * sigma_y) / alpha
         bbar_new = (T / 3.0) * ti.Matrix(_IDENTITY) + (x / x_trial) * d  # eq. 56
         result = bbar_new * _ti_cbrt(det / bbar_new.determinant())  # isochoric
-    return result
+        plastic = 1
+    return result, iso, log_e, plastic
 
 
 @ti.kernel
 def _return_mapping_kernel(be: ti.types.ndarray(ndim=3), be_old: ti.types.ndarray(ndim=3),
                            par: ti.types.ndarray(ndim=2), out: ti.types.ndarray(ndim=3),
-                           plastic: ti.types.ndarray(ndim=1), yue: ti.template()):
+                           plastic: ti.types.ndarray(ndim=1), log_e: ti.types.ndarray(ndim=1), yue: ti.template()):
     for p in range(be.shape[0]):
         b = ti.Matrix([[be[p, i, j] for j in ti.static(range(3))] for i in ti.static(range(3))])
         b0 = ti.Matrix([[be_old[p, i, j] for j in ti.static(range(3))] for i in ti.static(range(3))])
-        plastic[p] = is_plastic(b, par[p, 0], par[p, 3], yue)
-        r = return_mapping(b, b0, par[p, 0], par[p, 1], par[p, 2], par[p, 3], par[p, 4], yue)
+        r, _, s, pl = return_mapping(b, b0, iso_factor(b0.determinant()), par[p, 0], par[p, 1], par[p, 2],
+                                     par[p, 3], par[p, 4], par[p, 5], yue)
+        plastic[p] = pl
+        log_e[p] = s
         for i, j in ti.static(ti.ndrange(3, 3)):
             out[p, i, j] = r[i, j]
 
 
 def return_mapping_taichi(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rule: str = "paper",
-                          dtype=np.float64):
-    """Run the Taichi ``return_mapping`` over a batch (N, 3, 3) in ``dtype`` (float32 or float64).
-    Returns (new b_e as float64, plastic flags from ``is_plastic`` as bool)."""
+                          dtype=np.float64, log_e0=NO_WARM_START):
+    """Run the Taichi ``return_mapping`` over a batch (N, 3, 3) in ``dtype`` (float32 or float64), its
+    Newton solve started from ``log_e0`` (broadcast; default: from log(e_trial)). Returns (new b_e as
+    float64, plastic flags as bool, log of the excess stress e of eq. 57 where plastic, else NaN)."""
     yue = get_flow_rule(flow_rule) is _RULES["yue2015"]
     runtime.ensure_taichi()
     be = np.ascontiguousarray(np.asarray(be_trial).reshape(-1, 3, 3), dtype=dtype)
@@ -302,8 +307,11 @@ def return_mapping_taichi(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rul
                                dtype=dtype)
     batch = np.shape(be_trial)[:-2]
     par = np.stack([np.broadcast_to(np.asarray(v, dtype=float), batch).reshape(-1)
-                    for v in (mu, eta, n, sigma_y, dt)], axis=1).astype(dtype)
+                    for v in (mu, eta, n, sigma_y, dt, log_e0)], axis=1).astype(dtype)
     out = np.zeros_like(be)
     plastic = np.zeros(len(be), dtype=np.int32)
-    _return_mapping_kernel(be, old, par, out, plastic, yue)
-    return out.astype(np.float64).reshape(np.shape(be_trial)), plastic.astype(bool)
+    log_e = np.zeros(len(be), dtype=dtype)
+    _return_mapping_kernel(be, old, par, out, plastic, log_e, yue)
+    flags = plastic.astype(bool)
+    return (out.astype(np.float64).reshape(np.shape(be_trial)), flags.reshape(batch),
+            np.where(flags, log_e.astype(np.float64), np.nan).reshape(batch))

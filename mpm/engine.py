@@ -42,6 +42,8 @@ class Engine:
         self.v = ti.Vector.ndarray(d, self.dtype, cap)
         self.C = ti.Matrix.ndarray(d, d, self.dtype, cap)
         self.be = ti.Matrix.ndarray(3, 3, self.dtype, cap)
+        self.iso = ti.ndarray(self.dtype, cap)  # det(b_e)^(-1/3), kept by the return mapping
+        self.loge = ti.ndarray(self.dtype, cap)  # log of last step's excess stress: the Newton solve's start
         self.flags = ti.ndarray(ti.i32, cap)
         self.cap_p = cap
 

@@ -14,6 +14,8 @@ With one thread all the steps up to the next time-step update run in one launch 
 The grid is a dense window over the particles' stencil bounding box, recomputed every step; grid nodes
 sit at integer multiples of the cell width (the wall planes x = 0, y = 0, z = 0 are nodes).
 """
+import itertools
+
 import taichi as ti
 
 # layout of the small int32 control array ``win``
@@ -81,22 +83,35 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             stride[a] = stride[a + 1] * win[NX + a + 1]
         return origin, stride
 
-    @ti.func
-    def stencil(w, dw, off: ti.template()):
-        """Weight and gradient (cell units) of stencil node ``off``: tensor products of the 1D factors."""
-        wt = 1.0
-        grad = ti.Vector.one(float, D)
-        for a in ti.static(range(D)):
-            wt *= w[a, off[a]]
-            for b in ti.static(range(D)):
-                grad[b] *= dw[a, off[a]] if a == b else w[a, off[a]]
-        return wt, grad
+    L = D - 1  # the last axis: unit stride in the grid, innermost in the stencil loops
+    LEADS = [tuple(int(i) for i in idx) for idx in itertools.product(range(3), repeat=L)]
 
     @ti.func
-    def in_box(boxes: ti.template(), b: ti.template(), pos, z):
-        """(inside x and y ranges, inside z range) of static box b, inclusive bounds."""
-        in_xy = (boxes[b, 0, 0] <= pos[0] <= boxes[b, 1, 0]) and (boxes[b, 0, 1] <= pos[1] <= boxes[b, 1, 1])
-        in_z = boxes[b, 0, 2] <= z <= boxes[b, 1, 2]
+    def lead_weights(w, dw, lead: ti.template()):
+        """Weight and gradient factors of the stencil nodes (lead, k), k = 0..2 along the last axis:
+        weight = wl w[L, k]; gradient = (gl[0] w[L, k], .., gl[L-1] w[L, k], wl dw[L, k]) (cell units)."""
+        wl = 1.0
+        gl = ti.Vector.one(float, D)
+        for a in ti.static(range(L)):
+            wl *= w[a, lead[a]]
+            for b in ti.static(range(L)):
+                gl[b] *= dw[a, lead[a]] if a == b else w[a, lead[a]]
+        return wl, gl
+
+    @ti.func
+    def column(m, a: ti.template()):
+        return ti.Vector([m[r, a] for r in ti.static(range(D))])
+
+    @ti.func
+    def load_boxes(boxes: ti.template()):
+        """The wall boxes as a local 8 x 3 matrix: row 2 b + s is corner s (0: low, 1: high) of box b."""
+        return ti.Matrix([[boxes[r // 2, r % 2, a] for a in ti.static(range(3))] for r in ti.static(range(8))])
+
+    @ti.func
+    def in_box(bx, b: ti.template(), pos, z):
+        """(inside x and y ranges, inside z range) of static box b of ``load_boxes``, inclusive bounds."""
+        in_xy = (bx[2 * b, 0] <= pos[0] <= bx[2 * b + 1, 0]) and (bx[2 * b, 1] <= pos[1] <= bx[2 * b + 1, 1])
+        in_z = bx[2 * b, 2] <= z <= bx[2 * b + 1, 2]
         return in_xy, in_z
 
     @ti.func
@@ -124,60 +139,90 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
 
     @ti.func
     def p2g_particle(p, t, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
-                     grid: ti.template(), origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu, lh):
+                     iso: ti.template(), grid: ti.template(), origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa,
+                     mu, lh):
+        """Scatter particle p: node (lead, k) receives w (m v + m C (x_i - x_p)) - dt V_p tau grad w and w m.
+        With u = m v - m C fx (fx: particle position from stencil node 0, cells) and the factors of
+        ``lead_weights``, the momentum is w[L, k] (P + k Q) + dw[L, k] R with, per ``lead``,
+        P = wl (u + sum_a lead[a] m C[:, a]) + sum_a gl[a] S[:, a], Q = wl m C[:, L], R = wl S[:, L]."""
         X = x[p] * inv_dx - origin
         base, fx, w, dw = ugimp(X, lh)
-        tau = kirchhoff_stress(be[p], kappa, mu)
+        tau = kirchhoff_stress(be[p], iso[p], kappa, mu)
         S = (-dt * vol * inv_dx) * block(tau)  # force -V_p tau grad w (grad in cells)
-        mv = mp * v[p]
         mC = (mp * dx) * C[p]
+        u = mp * v[p] - mC @ fx  # APIC momentum at stencil node 0
         node0 = base.dot(stride)
         if ti.static(not atomic):
             node0 += t * capg
-        for off in ti.static(ti.grouped(ti.ndrange(*([3] * D)))):
-            wt, grad = stencil(w, dw, off)
-            mom = wt * (mv + mC @ (off - fx)) + S @ grad  # APIC: m (v + C (x_i - x_p))
-            contrib = ti.Vector.zero(float, D + 1)
-            for a in ti.static(range(D)):
-                contrib[a] = mom[a]
-            contrib[D] = wt * mp
-            k = node0 + off.dot(stride)
-            if ti.static(atomic):
-                grid[k] += contrib
-            else:
-                grid[k] = grid[k] + contrib  # own grid copy per task: no atomics needed
+        for lead in ti.static(LEADS):
+            wl, gl = lead_weights(w, dw, lead)
+            P = wl * u
+            k0 = node0
+            for a in ti.static(range(L)):
+                if ti.static(lead[a] > 0):
+                    P += (wl * lead[a]) * column(mC, a)
+                    k0 += lead[a] * stride[a]
+                P += gl[a] * column(S, a)
+            Q = wl * column(mC, L)
+            R = wl * column(S, L)
+            ml = wl * mp
+            for k in ti.static(range(3)):
+                mom = w[L, k] * (P + k * Q) + dw[L, k] * R
+                contrib = ti.Vector.zero(float, D + 1)
+                for a in ti.static(range(D)):
+                    contrib[a] = mom[a]
+                contrib[D] = w[L, k] * ml
+                if ti.static(atomic):
+                    grid[k0 + k] += contrib
+                else:
+                    grid[k0 + k] = grid[k0 + k] + contrib  # own grid copy per task: no atomics needed
 
     @ti.func
     def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
-                     flags: ti.template(), grid: ti.template(), boxes: ti.template(), origin, stride, dt,
-                     inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template()):
+                     iso: ti.template(), loge: ti.template(), flags: ti.template(), grid: ti.template(), bx,
+                     origin, stride, dt, inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template()):
         xp = x[p]
         X = xp * inv_dx - origin
         base, fx, w, dw = ugimp(X, lh)
         vp = ti.Vector.zero(float, D)
         B = ti.Matrix.zero(float, D, D)
         node0 = base.dot(stride)
-        for off in ti.static(ti.grouped(ti.ndrange(*([3] * D)))):
-            wt, grad = stencil(w, dw, off)
-            g = grid[node0 + off.dot(stride)]
-            gv = ti.Vector([g[a] for a in ti.static(range(D))])
-            vp += wt * gv
-            B += gv.outer_product(grad)
+        for lead in ti.static(LEADS):
+            wl, gl = lead_weights(w, dw, lead)
+            k0 = node0
+            for a in ti.static(range(L)):
+                if ti.static(lead[a] > 0):
+                    k0 += lead[a] * stride[a]
+            gw = ti.Vector.zero(float, D)  # sum_k w[L, k] v_k along the last axis
+            gd = ti.Vector.zero(float, D)  # sum_k dw[L, k] v_k
+            for k in ti.static(range(3)):
+                g = grid[k0 + k]
+                gv = ti.Vector([g[a] for a in ti.static(range(D))])
+                gw += w[L, k] * gv
+                gd += dw[L, k] * gv
+            vp += wl * gw
+            for r in ti.static(range(D)):
+                for a in ti.static(range(L)):
+                    B[r, a] += gl[a] * gw[r]
+                B[r, L] += wl * gd[r]
         B *= inv_dx  # C_p = grad v: the grid velocity gradient, not Jiang et al.'s B D^-1
         b_old = be[p]
         F = ti.Matrix.identity(float, 3) + dt * embed(B)
         b_trial = F @ b_old @ F.transpose()  # elastic predictor, eq. 52 in its F b F^T form
-        b_new = return_mapping(b_trial, b_old, mu, eta, n, sy, dt, yue)  # eq. 57; identity when elastic
+        # eq. 57, identity when elastic; the Newton solve starts from the particle's last log(e)
+        b_new, iso_new, log_e, plastic = return_mapping(b_trial, b_old, iso[p], mu, eta, n, sy, dt, loge[p], yue)
         f = flags[p]
-        if (b_new != b_trial).any():
+        if plastic:
             f |= PLASTIC
         be[p] = b_new
+        iso[p] = iso_new
+        loge[p] = log_e
         # walls, tested at the pre-advection position, as the reference implementation does
         z = zcoord(xp, zmid)
         frozen = False
         hidden = (f & HIDDEN) != 0
         for b in ti.static(range(4)):
-            in_xy, in_z = in_box(boxes, b, xp, z)
+            in_xy, in_z = in_box(bx, b, xp, z)
             if in_xy:
                 hidden = in_z  # the last box containing (x, y) decides visibility
                 if in_z:
@@ -197,7 +242,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         return xn, vp
 
     @ti.func
-    def navier_slip(i, grid: ti.template(), win: ti.template(), boxes: ti.template(), dx, inv_dx, zmid, slip):
+    def navier_slip(i, grid: ti.template(), win: ti.template(), bx, dx, inv_dx, zmid, slip):
         """Tangential velocity of wall node i from the Navier slip law with slip length ``slip`` (m).
 
         The velocity profile u(s) = gamma (b + s) (s: signed distance from the wall plane, > 0 in the
@@ -216,7 +261,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         inside = 0
         wall = -1
         for b in ti.static(range(4)):
-            in_xy, in_z = in_box(boxes, b, pos, z)
+            in_xy, in_z = in_box(bx, b, pos, z)
             if in_xy and in_z:
                 inside += 1
                 wall = b
@@ -225,7 +270,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             for b in ti.static(range(N_WALLS[D])):
                 if wall == b:
                     axis, sign, face = ti.static(WALL_NORMALS[b])
-                    s = sign * (pos[axis] - boxes[b, face, axis])  # <= 0: inside the wall
+                    s = sign * (pos[axis] - bx[2 * b + face, axis])  # <= 0: inside the wall
                     k = ti.floor(-s * inv_dx, ti.i32) + 1  # nodes to the first one outside
                     j = local[axis] + sign * k
                     if 0 <= j < win[NX + axis]:
@@ -234,7 +279,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                         fz = zcoord(fpos, zmid)
                         free = True
                         for c in ti.static(range(4)):
-                            in_xy, in_z = in_box(boxes, c, fpos, fz)
+                            in_xy, in_z = in_box(bx, c, fpos, fz)
                             if in_xy and in_z:
                                 free = False
                         if free:
@@ -246,10 +291,10 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         return inside, vel
 
     @ti.func
-    def step_body(x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
-                  flags: ti.template(), grid: ti.template(), win: ti.template(), acc: ti.template(),
-                  accf: ti.template(), boxes: ti.template(), lim: ti.template(), n, capg, dt, dx, mp, vol,
-                  kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue: ti.template()):
+    def step_body(x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(), iso: ti.template(),
+                  loge: ti.template(), flags: ti.template(), grid: ti.template(), win: ti.template(),
+                  acc: ti.template(), accf: ti.template(), bx, lim: ti.template(), n, capg, dt, dx, mp, vol,
+                  kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue: ti.template(), slipping: ti.template()):
         inv_dx = 1.0 / dx
         # 1. clear the previous window in every grid copy
         for i in range(win[COUNT]):
@@ -289,15 +334,15 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             for p in range(n):
                 if win[OVERFLOW] == 0 and win[ERROR] == 0:
                     origin, stride = window(win)
-                    p2g_particle(p, 0, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu,
-                                 lh)
+                    p2g_particle(p, 0, x, v, C, be, iso, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa,
+                                 mu, lh)
         else:
             for t in range(tasks):
                 if win[OVERFLOW] == 0 and win[ERROR] == 0:
                     origin, stride = window(win)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
-                        p2g_particle(p, t, x, v, C, be, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa, mu,
-                                 lh)
+                        p2g_particle(p, t, x, v, C, be, iso, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol,
+                                     kappa, mu, lh)
         # 4. grid update: gravity, sticking walls, velocity (copy 0 holds (v, m) afterwards)
         for i in range(win[COUNT]):
             g = grid[i]
@@ -315,7 +360,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 mom += (dt * m) * body  # gravity (and any other body force)
                 z = zcoord(pos, zmid)
                 for b in ti.static(range(4)):
-                    in_xy, in_z = in_box(boxes, b, pos, z)
+                    in_xy, in_z = in_box(bx, b, pos, z)
                     if in_xy and in_z:
                         mom = ti.Vector.zero(float, D)  # sticking wall
                 vel = mom / m
@@ -323,22 +368,23 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                     g[a] = vel[a]
             grid[i] = g
         # 4b. walls with a slip length: tangential velocity of the wall nodes from the Navier law
-        for i in range(win[COUNT]):
-            if slip > 0 and win[OVERFLOW] == 0 and win[ERROR] == 0:
-                g = grid[i]
-                if g[D] > 0:
-                    inside, vel = navier_slip(i, grid, win, boxes, dx, inv_dx, zmid, slip)
-                    if inside > 0:
-                        for a in ti.static(range(D)):
-                            g[a] = vel[a]
-                        grid[i] = g
+        if ti.static(slipping):
+            for i in range(win[COUNT]):
+                if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                    g = grid[i]
+                    if g[D] > 0:
+                        inside, vel = navier_slip(i, grid, win, bx, dx, inv_dx, zmid, slip)
+                        if inside > 0:
+                            for a in ti.static(range(D)):
+                                g[a] = vel[a]
+                            grid[i] = g
         # 5. G2P, constitutive update, walls, advection; bounding box and speed for the next step
         if ti.static(atomic):
             for p in range(n):
                 if win[OVERFLOW] == 0 and win[ERROR] == 0:
                     origin, stride = window(win)
-                    xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta, nn,
-                                          sy, zmid, lh, yue)
+                    xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx, mu,
+                                          eta, nn, sy, zmid, lh, yue)
                     if (xn != xn).any():
                         win[ERROR] = 1
                     base = ti.floor(xn * inv_dx - lh, ti.i32)
@@ -355,8 +401,8 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                     bad = 0
                     origin, stride = window(win)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
-                        xn, vp = g2p_particle(p, x, v, C, be, flags, grid, boxes, origin, stride, dt, inv_dx, mu, eta,
-                                              nn, sy, zmid, lh, yue)
+                        xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx,
+                                              mu, eta, nn, sy, zmid, lh, yue)
                         if (xn != xn).any():
                             bad = 1
                         base = ti.floor(xn * inv_dx - lh, ti.i32)
@@ -375,18 +421,20 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 win[DONE] += 1
 
     @ti.kernel
-    def step(x: nd, v: nd, C: nd, be: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd, boxes: nd,
-             lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float, kappa: float,
-             mu: float, eta: float, nn: float, sy: float, body: ti.types.vector(D, float), zmid: float,
-             lh: float, slip: float, steps: ti.i32, yue: ti.template()):
+    def step(x: nd, v: nd, C: nd, be: nd, iso: nd, loge: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd,
+             boxes: nd, lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float,
+             kappa: float, mu: float, eta: float, nn: float, sy: float, body: ti.types.vector(D, float),
+             zmid: float, lh: float, slip: float, steps: ti.i32, yue: ti.template(), slipping: ti.template()):
         if ti.static(serial):  # one thread: all ``steps`` steps in one launch, loops run in order
             for _ in range(1):
+                bx = load_boxes(boxes)
                 for _s in range(steps):
-                    step_body(x, v, C, be, flags, grid, win, acc, accf, boxes, lim, n, capg, dt, dx, mp, vol,
-                              kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue)
+                    step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, n, capg, dt, dx, mp,
+                              vol, kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping)
         else:  # parallel loops: one step per launch
-            step_body(x, v, C, be, flags, grid, win, acc, accf, boxes, lim, n, capg, dt, dx, mp, vol, kappa, mu,
-                      eta, nn, sy, body, zmid, lh, slip, yue)
+            bx = load_boxes(boxes)
+            step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, n, capg, dt, dx, mp, vol,
+                      kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping)
 
     @ti.kernel
     def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, lh: float):

@@ -13,6 +13,9 @@ import taichi as ti
 from taichi.lang import impl
 
 PRECISIONS = ("f32", "f64")
+# Taichi's own IR optimisation passes (CFG store forwarding, whole-kernel CSE) take minutes on the single-launch
+# 3D step kernel and gain little over LLVM's: off, the first compile takes seconds (docs/performance.md)
+ADVANCED_OPTIMIZATION = False
 
 
 def arch():
@@ -60,7 +63,8 @@ def ensure_taichi(precision: str | None = None):
     if rt.prog is not None:
         ti.reset()
     with contextlib.redirect_stdout(io.StringIO()):  # Taichi prints its start-up lines to stdout
-        ti.init(arch=arch(), default_fp=fp, offline_cache=True, cpu_max_num_threads=threads(), log_level=ti.WARN)
+        ti.init(arch=arch(), default_fp=fp, offline_cache=True, cpu_max_num_threads=threads(), log_level=ti.WARN,
+                advanced_optimization=ADVANCED_OPTIMIZATION)
     return impl.get_runtime().prog
 
 

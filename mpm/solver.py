@@ -16,6 +16,7 @@ import numpy as np
 import taichi as ti
 
 from mpm import kernels as kn
+from mpm.constitutive import NO_WARM_START
 from mpm.engine import Engine, engine
 from mpm import runtime
 from mpm import scene as sc
@@ -165,6 +166,8 @@ class _Run:
         eng.v.fill(0)
         eng.C.fill(0)
         eng.be.from_numpy(be)
+        eng.iso.fill(1)  # b_e = I
+        eng.loge.fill(NO_WARM_START)
         eng.flags.from_numpy(flags)
         eng.boxes.from_numpy(scene.boxes().astype(dt))
         lo, hi = scene.reach()
@@ -192,10 +195,10 @@ class _Run:
     def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
         eng, s = self.eng, self.scene
         for _ in range(launches):
-            eng.step(eng.x, eng.v, eng.C, eng.be, eng.flags, eng.grid, eng.win, eng.acc, eng.accf, eng.boxes,
-                     eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass, s.particle_volume, s.kappa,
-                     s.mu, self.eta, self.n, self.sigma_y, self.body, s.plane_z_m,
-                     s.half_length_m / s.cell_m, self.slip_m, per_launch, self.yue)
+            eng.step(eng.x, eng.v, eng.C, eng.be, eng.iso, eng.loge, eng.flags, eng.grid, eng.win, eng.acc,
+                     eng.accf, eng.boxes, eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass,
+                     s.particle_volume, s.kappa, s.mu, self.eta, self.n, self.sigma_y, self.body, s.plane_z_m,
+                     s.half_length_m / s.cell_m, self.slip_m, per_launch, self.yue, self.slip_m > 0)
 
     def _advance(self, steps: int, dt: float) -> None:
         """Run ``steps`` steps of size dt, growing the grid whenever the window overflows it."""

@@ -177,12 +177,12 @@ def test_taichi_return_mapping_equals_numpy(flow_rule):
     be_trial, be_old, eta, n, sy, dt = random_states(1000, seed=1)
     ref = c.return_mapping_np(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule)
     flags = c.is_plastic_np(be_trial, MU, sy, flow_rule)
-    out64, pl64 = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule)
+    out64, pl64, _ = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule)
     assert np.array_equal(pl64, flags)
     assert rel_diff(out64, ref).max() < 1e-7  # f64 literals may be f32 under default_fp=f32
     assert np.allclose(np.linalg.det(out64), np.linalg.det(be_trial), rtol=1e-7, atol=0)
-    out32, pl32 = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule,
-                                          dtype=np.float32)
+    out32, pl32, _ = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule,
+                                             dtype=np.float32)
     clear = np.abs(c.yield_function(c.cauchy_stress(be_trial, KAPPA, MU), sy, flow_rule)) > 1e-2
     assert np.array_equal(pl32[clear], flags[clear])
     assert rel_diff(out32, ref).max() < 1e-5  # f32: ~3e-7 measured
@@ -195,7 +195,7 @@ def test_taichi_return_mapping_equals_numpy(flow_rule):
 def _kirchhoff_kernel(be: ti.types.ndarray(ndim=3), out: ti.types.ndarray(ndim=3)):
     for p in range(be.shape[0]):
         b = ti.Matrix([[be[p, i, j] for j in ti.static(range(3))] for i in ti.static(range(3))])
-        tau = c.kirchhoff_stress(b, 1e4, 1e3)
+        tau = c.kirchhoff_stress(b, c.iso_factor(b.determinant()), 1e4, 1e3)
         for i, j in ti.static(ti.ndrange(3, 3)):
             out[p, i, j] = tau[i, j]
 
@@ -207,3 +207,22 @@ def test_taichi_kirchhoff_stress_equals_numpy():
     _kirchhoff_kernel(be, out)
     ref = c.kirchhoff_stress_np(be, KAPPA, MU)
     assert np.abs(out - ref).max() < 1e-6 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_warm_started_newton_solve_reaches_the_same_root(dtype):
+    """The MPM kernel starts the Newton solve of eq. 57 from the particle's last log(e): from below the
+    root (the first step lands above it) or above it, near or far, the result is the cold-started one."""
+    be_trial, be_old, eta, n, sy, dt = random_states(1000, seed=3)
+    cold, plastic, log_e = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, dtype=dtype)
+    assert plastic.sum() > 300 and np.isfinite(log_e[plastic]).all() and np.isnan(log_e[~plastic]).all()
+    e = np.exp(log_e[plastic])
+    assert np.all(e > 0)
+    root = np.where(plastic, log_e, 0.0)
+    tol = 1e-12 if dtype == np.float64 else 2e-6
+    for shift in (-3.0, -0.3, -1e-3, 1e-3, 0.3, 3.0):
+        warm, plastic_w, log_w = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, dtype=dtype,
+                                                         log_e0=root + shift)
+        assert np.array_equal(plastic_w, plastic)
+        assert rel_diff(warm, cold).max() < tol
+        assert np.abs(log_w[plastic] - log_e[plastic]).max() < 100 * tol
