@@ -130,6 +130,18 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         return r
 
     @ti.func
+    def sandwich(F, b):
+        """F b F^T for a symmetric b: the upper triangle, mirrored."""
+        M = F @ b
+        r = ti.Matrix.zero(float, 3, 3)
+        for i, j in ti.static(ti.ndrange(3, 3)):
+            if ti.static(j >= i):
+                r[i, j] = M[i, 0] * F[j, 0] + M[i, 1] * F[j, 1] + M[i, 2] * F[j, 2]
+                if ti.static(j > i):
+                    r[j, i] = r[i, j]
+        return r
+
+    @ti.func
     def embed(m):
         """D x D velocity gradient as 3x3 (plane strain: zero out-of-plane rows and columns)."""
         r = ti.Matrix.zero(float, 3, 3)
@@ -208,7 +220,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         B *= inv_dx  # C_p = grad v: the grid velocity gradient, not Jiang et al.'s B D^-1
         b_old = be[p]
         F = ti.Matrix.identity(float, 3) + dt * embed(B)
-        b_trial = F @ b_old @ F.transpose()  # elastic predictor, eq. 52 in its F b F^T form
+        b_trial = sandwich(F, b_old)  # elastic predictor, eq. 52 in its F b F^T form
         # eq. 57, identity when elastic; the Newton solve starts from the particle's last log(e)
         b_new, iso_new, log_e, plastic = return_mapping(b_trial, b_old, iso[p], mu, eta, n, sy, dt, loge[p], yue)
         f = flags[p]
@@ -291,6 +303,33 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         return inside, vel
 
     @ti.func
+    def grid_node(I, grid: ti.template(), win: ti.template(), bx, capg, dt, dx, body, zmid):
+        """Grid node I (window coordinates): momentum of all task copies plus dt m body, zero inside a wall
+        (sticking), then velocity; stored as (v, m) in copy 0."""
+        i = 0
+        for a in ti.static(range(D)):
+            i = i * win[NX + a] + I[a]
+        g = grid[i]
+        for t in ti.static(range(1, tasks)):
+            g += grid[t * capg + i]
+        m = g[D]
+        if m > 0:
+            pos = ti.Vector([(I[a] + win[OX + a]) * dx for a in ti.static(range(D))])
+            mom = ti.Vector([g[a] for a in ti.static(range(D))])
+            mom += (dt * m) * body  # gravity (and any other body force)
+            z = zcoord(pos, zmid)
+            for b in ti.static(range(4)):
+                in_xy, in_z = in_box(bx, b, pos, z)
+                if in_xy and in_z:
+                    mom = ti.Vector.zero(float, D)  # sticking wall
+            vel = mom / m
+            for a in ti.static(range(D)):
+                g[a] = vel[a]
+            grid[i] = g
+        elif ti.static(tasks > 1):
+            grid[i] = g
+
+    @ti.func
     def step_body(x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(), iso: ti.template(),
                   loge: ti.template(), flags: ti.template(), grid: ti.template(), win: ti.template(),
                   acc: ti.template(), accf: ti.template(), bx, lim: ti.template(), n, capg, dt, dx, mp, vol,
@@ -343,30 +382,15 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
                         p2g_particle(p, t, x, v, C, be, iso, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol,
                                      kappa, mu, lh)
-        # 4. grid update: gravity, sticking walls, velocity (copy 0 holds (v, m) afterwards)
-        for i in range(win[COUNT]):
-            g = grid[i]
-            for t in ti.static(range(1, tasks)):
-                g += grid[t * capg + i]
-            m = g[D]
-            if m > 0:
-                local = ti.Vector.zero(ti.i32, D)
-                rest = i
-                for a in ti.static(range(D - 1, -1, -1)):
-                    local[a] = rest % win[NX + a]
-                    rest = rest // win[NX + a]
-                pos = ti.Vector([(local[a] + win[OX + a]) * dx for a in ti.static(range(D))])
-                mom = ti.Vector([g[a] for a in ti.static(range(D))])
-                mom += (dt * m) * body  # gravity (and any other body force)
-                z = zcoord(pos, zmid)
-                for b in ti.static(range(4)):
-                    in_xy, in_z = in_box(bx, b, pos, z)
-                    if in_xy and in_z:
-                        mom = ti.Vector.zero(float, D)  # sticking wall
-                vel = mom / m
-                for a in ti.static(range(D)):
-                    g[a] = vel[a]
-            grid[i] = g
+        # 4. grid update: gravity, sticking walls, velocity (copy 0 holds (v, m) afterwards); the nodes by their
+        # window coordinates (nested loops on one thread: no index division), none after an overflow
+        live = ti.cast(win[COUNT] > 0, ti.i32)
+        if ti.static(D == 3):
+            for I in ti.grouped(ti.ndrange(win[NX] * live, win[NX + 1], win[NX + 2])):
+                grid_node(I, grid, win, bx, capg, dt, dx, body, zmid)
+        else:
+            for I in ti.grouped(ti.ndrange(win[NX] * live, win[NX + 1])):
+                grid_node(I, grid, win, bx, capg, dt, dx, body, zmid)
         # 4b. walls with a slip length: tangential velocity of the wall nodes from the Navier law
         if ti.static(slipping):
             for i in range(win[COUNT]):

@@ -219,7 +219,7 @@ def test_warm_started_newton_solve_reaches_the_same_root(dtype):
     e = np.exp(log_e[plastic])
     assert np.all(e > 0)
     root = np.where(plastic, log_e, 0.0)
-    tol = 1e-12 if dtype == np.float64 else 2e-6
+    tol = 1e-8 if dtype == np.float64 else 2e-6  # the solve stops within ~1e-9 of the root (NEWTON_TOL)
     for shift in (-3.0, -0.3, -1e-3, 1e-3, 0.3, 3.0):
         warm, plastic_w, log_w = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, dtype=dtype,
                                                          log_e0=root + shift)
