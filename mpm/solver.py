@@ -85,7 +85,7 @@ def _compile_notice(eng):
         if not _NOTICE["said"]:
             _NOTICE["said"] = True
             print("virheometry: compiling the simulation kernels (first run with this solver on this machine; "
-                  "one to three minutes, cached afterwards)...", file=sys.stderr, flush=True)
+                  "about ten seconds, cached afterwards)...", file=sys.stderr, flush=True)
 
     timer = threading.Timer(COMPILE_NOTICE_S, say)
     timer.daemon = True

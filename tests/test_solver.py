@@ -184,3 +184,21 @@ def test_f64_option_agrees_with_f32():
     front64, mass_err, precision = json.loads(out.strip().splitlines()[-1])
     assert precision == "f64" and mass_err < 1e-12
     assert np.allclose(front64, run(0.3).front_m, atol=0.5e-3)
+
+
+def test_a_slow_first_launch_says_it_is_compiling(monkeypatch, capsys):
+    """The first launch of an engine's kernels (Taichi compiling them) prints one line on stderr once it takes
+    longer than COMPILE_NOTICE_S; a warm engine, or a quick first launch, prints nothing."""
+    import time
+
+    monkeypatch.setattr(solver, "COMPILE_NOTICE_S", 0.05)
+    monkeypatch.setitem(solver._NOTICE, "said", False)
+    with solver._compile_notice(NS(warm=False)):
+        pass
+    with solver._compile_notice(NS(warm=True)):
+        time.sleep(0.2)
+    assert capsys.readouterr().err == ""
+    with solver._compile_notice(NS(warm=False)):
+        time.sleep(0.3)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "compiling the simulation kernels" in err
