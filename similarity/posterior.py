@@ -284,6 +284,8 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
     # emulator training set: the archive near the estimate + a space-filling batch of new simulations
     X_old = archive(run, x_hat, half_width)
     X_new = space_filling(x_hat, half_width, new_simulations, seed=seed) if new_simulations else np.zeros((0, 3))
+    # a re-run finds the new batch in the store: count it once, so the training set (and the backend) stay the same
+    X_old = X_old[~np.any(np.all(np.abs(X_old[:, None] - X_new[None]) < 1e-9, axis=2), axis=1)]
     say(f"emulator: {len(X_old)} simulated candidates from the store, {len(X_new)} new")
     y_old = mean_losses(run, X_old, executor)
     y_new = mean_losses(run, X_new, executor)

@@ -1,0 +1,331 @@
+"""Calibration of the posterior on emulated footage: does the 90 % credible region hold the truth 90 % of the time?
+
+Cases: materials by a scrambled Sobol design over the normalised material space (kept 5 % off its faces,
+like the emulation study's), one random setup each.  Per case and setting:
+
+1. footage of the true material, simulated by the estimating model (setting ``same``) or at half its cell
+   width (setting ``finer``), written as an experiment folder;
+2. a one-setup estimate (Algorithm 1, one stage, the preset's model);
+3. the posterior exactly as ``virheo report`` computes it (:func:`similarity.posterior.analyse`: noise
+   scale with the discretisation error, emulator from the store plus a space-filling batch, emcee);
+4. the credible level of the truth in three kinds of region (:func:`credible_levels`).
+
+The *credible level* of the truth is the smallest level whose region contains it; the truth lies in the
+level-a region iff its credible level is <= a, so the empirical coverage at every level (the reliability
+curve) follows from one number per case and region.  Regions, all in the normalised space:
+
+* ``hpd``: the highest-posterior-density region {x : p(x | footage) >= c_a}, c_a set so that it holds a
+  fraction a of the samples; the truth's level is the fraction of samples denser than the truth.  This is the
+  smallest region of posterior mass a, the one "the 90 % credible region" names; it follows the posterior's
+  curved similarity valley.  Outside the emulator's trust region the posterior is zero, so a truth there lies
+  in no region (level 1).
+* ``ellipsoid``: the Mahalanobis ellipsoid of the samples' mean and covariance holding a fraction a of them
+  (the shape of the ellipsoid ``virheo report`` draws).
+* ``intervals``: per parameter, the central interval between the (1-a)/2 and (1+a)/2 quantiles; the joint
+  level is the largest of the three (all three intervals hold the truth).
+
+Every simulation goes through the store and every finished case is kept in ``case.json``, so a killed study
+resumes where it stopped.  Writes ``calibration.json``, ``calibration.md`` and ``reliability.png``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from mpm import batch
+from mpm.files import read_json
+from similarity.space import Material, Setup, denormalize, e_rel, normalize
+from studies.report import save_figure, write_json
+
+SETTINGS = ("same", "finer")
+LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliability curve
+NOMINAL = 0.9  # the level the acceptance test names
+REGIONS = ("hpd", "ellipsoid", "intervals")
+PARAMETERS = ("eta", "n", "sigma_y")
+DENSITY = 1000.0  # kg/m^3
+
+
+# -- design --------------------------------------------------------------------------------------------
+def design(cases: int, seed: int = 0) -> list[tuple[Material, Setup]]:
+    """``cases`` (material, setup) pairs: scrambled Sobol materials in 5 %..95 % of the normalised space,
+    a random 1 mm-grid setup each.  The first k cases do not depend on ``cases`` (a study can grow)."""
+    import warnings
+
+    from scipy.stats import qmc
+
+    from studies.emulation import random_setups
+
+    if cases < 1:
+        raise ValueError(f"cases={cases} must be >= 1")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # Sobol' balance wants 2^k points; any prefix is space-filling
+        u = qmc.Sobol(d=3, scramble=True, seed=seed).random(int(cases))
+    return [(Material.from_array(denormalize(0.05 + 0.9 * p)), random_setups(1, np.random.default_rng([seed, i]))[0])
+            for i, p in enumerate(u)]
+
+
+def footage_preset(preset, setting: str):
+    """The preset whose final model films the footage: the estimating one, or one at half its cell width."""
+    from similarity.estimate import get_preset
+
+    preset = get_preset(preset)
+    if setting == "same":
+        return preset
+    if setting != "finer":
+        raise ValueError(f"setting '{setting}' must be one of {', '.join(SETTINGS)}")
+    model = preset.final.resolved()
+    return replace(preset, name=f"{preset.name}-fine", cell_mm=model.cell_mm / 2.0, ppc=model.ppc,
+                   finish_generations=0)
+
+
+# -- coverage bookkeeping ----------------------------------------------------------------------------------
+def credible_levels(samples, truth, *, log_density=None) -> dict:
+    """Credible level of ``truth`` (normalised, (3,)) under posterior ``samples`` (k, 3) for every region kind
+    (module docstring) and per parameter.  ``log_density``: the unnormalised log-posterior, vectorised
+    ((m, 3) -> (m,), -inf outside the support); without it the ``hpd`` level is not computed (None)."""
+    X = np.asarray(samples, float)
+    t = np.asarray(truth, float)
+    if X.ndim != 2 or X.shape[1] != t.size or len(X) < 2:
+        raise ValueError("need at least two samples (k, d) and a truth of d values")
+    out: dict = {}
+    if log_density is not None:
+        lp = np.asarray(log_density(X), float)
+        lt = float(np.asarray(log_density(t[None]), float)[0])
+        out["hpd"] = 1.0 if not np.isfinite(lt) else float(np.mean(lp > lt))
+    else:
+        out["hpd"] = None
+    d = X - X.mean(axis=0)
+    prec = np.linalg.pinv(np.cov(X, rowvar=False))
+    d2 = np.einsum("ij,jk,ik->i", d, prec, d)
+    dt = t - X.mean(axis=0)
+    out["ellipsoid"] = float(np.mean(d2 < dt @ prec @ dt))
+    per = np.abs(2.0 * np.mean(X <= t, axis=0) - 1.0)  # central interval of level a holds t iff |2F - 1| <= a
+    out["intervals"] = float(np.max(per))
+    out["per_parameter"] = dict(zip(PARAMETERS, per.tolist()))
+    return out
+
+
+def coverage(levels_of_truth, nominal=LEVELS) -> np.ndarray:
+    """Empirical coverage at each nominal level: the fraction of cases whose credible level is <= it."""
+    v = np.asarray([1.0 if x is None else x for x in levels_of_truth], float)
+    if v.size == 0:
+        return np.full(np.shape(nominal), np.nan)
+    return np.mean(v[:, None] <= np.asarray(nominal, float)[None, :] + 1e-12, axis=0)
+
+
+# -- one case ------------------------------------------------------------------------------------------
+def _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, simulator) -> dict:
+    from similarity.estimate import get_preset
+
+    p = get_preset(preset)
+    return {"preset": p.name, "generations": int(generations or p.generations), "new_simulations": int(new_simulations),
+            "half_width": float(half_width), "seed": int(seed), "min_ess": float(min_ess), "max_steps": int(max_steps),
+            "simulator": simulator}
+
+
+def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *, config: dict, store, executor,
+             progress=None) -> dict:
+    """Footage, estimate, posterior and credible levels of one case; the record is kept in ``folder/case.json``
+    and read back (nothing recomputed) when it is there with the same configuration."""
+    from mpm.experiment import load, write as write_experiment
+    from similarity import estimate as E
+    from similarity.posterior import analyse
+
+    folder = Path(folder)
+    done = folder / "case.json"
+    if done.is_file():
+        rec = read_json(done)
+        if rec.get("config") != config:
+            raise ValueError(f"{done} was made with other settings ({rec.get('config')}); use another --out")
+        return rec
+    folder.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    sim = config["simulator"]
+    # 1. footage, as an experiment folder (the estimate and the posterior read it like real footage)
+    shot = E.emulate(truth, [setup], density=DENSITY, preset=footage_preset(config["preset"], setting), store=store,
+                     executor=executor, simulator=sim)[0]
+    footage = folder / f"footage_{setup}"
+    write_experiment(footage, shot.frames, width_mm=setup.width_mm, height_mm=setup.height_mm, camera=shot.camera,
+          density=DENSITY)
+    exp = load(footage)
+    # 2. one-setup estimate
+    seed = config["seed"] + index
+    est = E.estimate([exp], preset=config["preset"], seed=seed, executor=executor, store=store,
+                     generations=config["generations"], simulator=sim, progress=progress, propose=None)
+    t_est = time.perf_counter() - t0
+    result = est.to_dict() | {"folders": [str(footage.resolve())], "simulator": sim, "truth": truth.to_dict(),
+                              "e_rel": e_rel(truth, est.material)}
+    write_json(folder / "result.json", result)
+    # 3. the posterior of `virheo report`
+    a = analyse(folder, store=store, executor=executor, new_simulations=config["new_simulations"],
+                half_width=config["half_width"], seed=seed, min_ess=config["min_ess"],
+                max_steps=config["max_steps"], discretisation=True, progress=progress)
+    lo, hi = (np.asarray(v, float) for v in a.summary["emulator"]["trust_region"])
+
+    def log_density(x):  # the sampled log-posterior: eq. (1) on the emulated loss inside the trust region
+        x = np.atleast_2d(x)
+        inside = np.all((x >= lo) & (x <= hi), axis=1)
+        out = np.full(len(x), -np.inf)
+        if inside.any():
+            out[inside] = a.noise.log_likelihood(a.emulator.predict(x[inside]))
+        return out
+
+    x_true = normalize(truth.as_array())
+    levels = credible_levels(a.posterior.samples, x_true, log_density=log_density)
+    post = a.summary["posterior"]
+    rec = {
+        "case": index, "setting": setting, "config": config, "truth": truth.to_dict(),
+        "truth_normalised": x_true.tolist(), "setup": str(setup), "estimate": est.material.to_dict(),
+        "e_rel": e_rel(truth, est.material), "loss": est.loss, "simulations_estimate": est.simulations,
+        "footage_cell_mm": footage_preset(config["preset"], setting).final.resolved().cell_mm,
+        "credible_level": levels, "truth_in_trust_region": bool(np.all((x_true >= lo) & (x_true <= hi))),
+        "posterior": {k: post[k] for k in ("mean", "quantiles", "ess", "converged", "iterations", "acceptance")},
+        "noise": {k: a.summary["noise"][k] for k in ("n_eff", "loss_at_optimum", "discretisation", "emulator",
+                                                      "variance")},
+        "emulator": a.summary["emulator"],
+        "wall_seconds": {"estimate": t_est, "total": time.perf_counter() - t0},
+    }
+    write_json(done, rec)
+    return rec
+
+
+# -- the study --------------------------------------------------------------------------------------------
+def case_folder(out, setting: str, index: int) -> Path:
+    return Path(out) / "cases" / setting / f"case_{index:02d}"
+
+
+def run_study(out, *, cases: int = 20, settings=SETTINGS, preset="demo", generations: int | None = None,
+              new_simulations: int = 24, half_width: float = 0.1, seed: int = 0, min_ess: float = 1000.0,
+              max_steps: int = 20000, store=None, executor=None, progress=None,
+              simulator: str = batch.DEFAULT_SIMULATOR) -> dict:
+    """Run (or resume) ``cases`` cases in each of ``settings``, case by case, and write the outputs."""
+    for s in settings:
+        footage_preset(preset, s)  # unknown settings stop here
+    config = _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, simulator)
+    t0 = time.perf_counter()
+    for i, (truth, setup) in enumerate(design(cases, seed)):
+        for s in settings:
+            if progress:
+                progress({"event": "message", "text": f"case {i + 1}/{cases} ({s}): eta={truth.eta:.3g} "
+                          f"n={truth.n:.3g} sigma_y={truth.sigma_y:.3g}, setup {setup}"})
+            rec = run_case(case_folder(out, s, i), i, truth, setup, s, config=config, store=store, executor=executor,
+                           progress=progress)
+            if progress:
+                lv = rec["credible_level"]
+                progress({"event": "message", "text": f"  E_rel {rec['e_rel']:.3f}; credible level of the truth: "
+                          f"HPD {lv['hpd']:.2f}, ellipsoid {lv['ellipsoid']:.2f}, intervals {lv['intervals']:.2f}"})
+    return write(out, wall_seconds=time.perf_counter() - t0)
+
+
+def records(out) -> list[dict]:
+    """Every finished case under ``out`` (both settings), in setting then case order."""
+    found = []
+    for s in SETTINGS:
+        for p in sorted((Path(out) / "cases" / s).glob("case_*/case.json")):
+            found.append(read_json(p))
+    configs = {str(r["config"]) for r in found}
+    if len(configs) > 1:
+        raise ValueError(f"{out} holds cases made with different settings; use one --out per configuration")
+    return found
+
+
+def summary(recs: list[dict]) -> dict:
+    out = {}
+    for s in SETTINGS:
+        rs = [r for r in recs if r["setting"] == s]
+        if not rs:
+            continue
+        lv = [r["credible_level"] for r in rs]
+        at = int(np.flatnonzero(np.isclose(LEVELS, NOMINAL))[0])
+        out[s] = {
+            "cases": len(rs),
+            "coverage_90": {k: float(coverage([v[k] for v in lv])[at]) for k in REGIONS},
+            "inside_90": {k: int(round(len(rs) * coverage([v[k] for v in lv])[at])) for k in REGIONS},
+            "coverage_90_per_parameter": {p: float(coverage([v["per_parameter"][p] for v in lv])[at])
+                                          for p in PARAMETERS},
+            "reliability": {"levels": LEVELS.tolist(),
+                            **{k: coverage([v[k] for v in lv]).tolist() for k in REGIONS},
+                            **{p: coverage([v["per_parameter"][p] for v in lv]).tolist() for p in PARAMETERS}},
+            "truth_in_trust_region": int(sum(r["truth_in_trust_region"] for r in rs)),
+            "median_e_rel": float(np.median([r["e_rel"] for r in rs])),
+            "median_ess": float(np.median([r["posterior"]["ess"] for r in rs])),
+            "converged": int(sum(bool(r["posterior"]["converged"]) for r in rs)),
+            "mean_wall_seconds": float(np.mean([r["wall_seconds"]["total"] for r in rs])),
+        }
+    return out
+
+
+def table_markdown(recs: list[dict], summ: dict) -> str:
+    lines = ["| setting | case | truth (eta, n, sigma_y) | setup | E_rel | HPD level | ellipsoid level | "
+             "in 90 % HPD | in 90 % interval (eta, n, sigma_y) | ESS | s^2 | wall [s] |",
+             "|---|---:|---|---|---:|---:|---:|---|---|---:|---:|---:|"]
+    for r in recs:
+        t, lv = r["truth"], r["credible_level"]
+        per = " ".join("y" if lv["per_parameter"][p] <= NOMINAL else "n" for p in PARAMETERS)
+        lines.append(f"| {r['setting']} | {r['case']} | {t['eta']:.3g}, {t['n']:.3g}, {t['sigma_y']:.3g} | "
+                     f"{r['setup']} | {r['e_rel']:.3f} | {lv['hpd']:.2f} | {lv['ellipsoid']:.2f} | "
+                     f"{'yes' if lv['hpd'] <= NOMINAL else 'no'} | {per} | {r['posterior']['ess']:.0f} | "
+                     f"{r['noise']['variance']:.2e} | {r['wall_seconds']['total']:.0f} |")
+    lines += ["", "| setting | cases | 90 % HPD | 90 % ellipsoid | 90 % intervals jointly | eta | n | sigma_y | "
+              "truth in trust region | median E_rel |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for s, v in summ.items():
+        n = v["cases"]
+        cov = v["coverage_90"]
+        per = v["coverage_90_per_parameter"]
+        lines.append(f"| {s} | {n} | {v['inside_90']['hpd']}/{n} ({100 * cov['hpd']:.0f} %) | "
+                     f"{v['inside_90']['ellipsoid']}/{n} ({100 * cov['ellipsoid']:.0f} %) | "
+                     f"{v['inside_90']['intervals']}/{n} ({100 * cov['intervals']:.0f} %) | "
+                     + " | ".join(f"{100 * per[p]:.0f} %" for p in PARAMETERS)
+                     + f" | {v['truth_in_trust_region']}/{n} | {v['median_e_rel']:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_reliability(path, summ: dict) -> Path:
+    """Nominal level vs empirical coverage, one panel per setting, with the binomial 90 % band of a calibrated
+    posterior around the diagonal."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy.stats import binom
+
+    n_pan = max(1, len(summ))
+    fig, axes = plt.subplots(1, n_pan, figsize=(3.6 * n_pan, 3.5), dpi=100, squeeze=False)
+    for ax, (s, v) in zip(axes[0], summ.items()):
+        rel, n = v["reliability"], v["cases"]
+        lv = np.asarray(rel["levels"])
+        ax.fill_between(lv, binom.ppf(0.05, n, lv) / n, binom.ppf(0.95, n, lv) / n, color="0.88",
+                        label="90 % band if calibrated")
+        ax.plot([0, 1], [0, 1], color="0.5", lw=1)
+        for key, style, label in (("hpd", "o-", "HPD region"), ("ellipsoid", "s--", "ellipsoid"),
+                                  ("intervals", "^:", "intervals jointly")):
+            ax.plot(lv, rel[key], style, ms=4, lw=1.6, label=label)
+        for p, c in zip(PARAMETERS, ("tab:red", "tab:purple", "tab:brown")):
+            ax.plot(lv, rel[p], color=c, lw=0.8, alpha=0.7, label=f"{p} interval")
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1.02)
+        ax.set_aspect("equal")
+        ax.set_xlabel("nominal level", fontsize=8)
+        ax.set_ylabel("fraction of cases covered", fontsize=8)
+        ax.set_title(f"footage: {s} model ({n} cases)", fontsize=9)
+        ax.tick_params(labelsize=7)
+    axes[0][0].legend(fontsize=6, loc="upper left")
+    return save_figure(fig, path)
+
+
+def write(out, *, wall_seconds: float | None = None) -> dict:
+    """calibration.json, calibration.md and reliability.png from every finished case under ``out``."""
+    out = Path(out)
+    recs = records(out)
+    if not recs:
+        raise ValueError(f"{out}: no finished cases")
+    summ = summary(recs)
+    result = {"config": recs[0]["config"], "levels": LEVELS.tolist(), "nominal": NOMINAL, "summary": summ,
+              "wall_seconds": wall_seconds, "cases": recs}
+    write_json(out / "calibration.json", result)
+    (out / "calibration.md").write_text(table_markdown(recs, summ))
+    plot_reliability(out / "reliability.png", summ)
+    return result

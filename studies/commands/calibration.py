@@ -1,0 +1,53 @@
+"""``virheo study calibration``: coverage of the posterior's 90 % credible region on emulated footage."""
+from __future__ import annotations
+
+import argparse
+
+from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real
+
+
+def register(study_subparsers) -> None:
+    """Add ``calibration`` to the ``study`` sub-command's parsers."""
+    p = study_subparsers.add_parser(
+        "calibration", help="does the posterior's 90 % credible region hold the truth? (emulated footage)",
+        description="Materials by a Sobol design over the material space, one random setup each; footage simulated "
+        "by the estimating model ('same') or at half its cell width ('finer'); a one-setup estimate, then the "
+        "posterior of `virheo report`; records the credible level of the truth. Writes calibration.json, "
+        "calibration.md and reliability.png. Resumes from its store and its finished cases.")
+    p.add_argument("--cases", type=integer, default=20, metavar="N", help="materials (one setup each; default 20)")
+    p.add_argument("--setting", choices=("same", "finer", "both"), default="both",
+                   help="footage by the estimating model, at half its cell width, or both (default both)")
+    p.add_argument("--new-simulations", type=integer, default=24, metavar="K",
+                   help="space-filling candidates simulated for each case's emulator (default 24)")
+    p.add_argument("--half-width", type=real, default=0.1, metavar="W",
+                   help="half-width of the emulator's box around the estimate, normalised space (default 0.1)")
+    p.add_argument("--min-ess", type=real, default=1000.0, metavar="N",
+                   help="effective posterior samples per case (default 1000)")
+    p.add_argument("--max-steps", type=integer, default=20000, metavar="N", help="most emcee steps per case (default 20000)")
+    p.add_argument("--seed", type=integer, default=0, help="seed of the design, CMA-ES and emcee (default 0)")
+    add_preset_option(p, default="demo")
+    add_run_options(p, default_out="./virheo-calibration")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from studies import calibration as C
+
+    if args.cases < 1:
+        raise ValueError(f"--cases {args.cases} must be >= 1")
+    if args.new_simulations < 0 or args.min_ess <= 0 or args.max_steps < 1 or not 0 < args.half_width <= 0.5:
+        raise ValueError("--new-simulations >= 0, --min-ess > 0, --max-steps >= 1 and 0 < --half-width <= 0.5 required")
+    check_run_options(args)
+    settings = C.SETTINGS if args.setting == "both" else (args.setting,)
+    with open_run(args) as run:
+        result = C.run_study(run.out, cases=args.cases, settings=settings, preset=args.preset,
+                             generations=args.generations, new_simulations=args.new_simulations,
+                             half_width=args.half_width, seed=args.seed, min_ess=args.min_ess,
+                             max_steps=args.max_steps, store=run.store, executor=run.executor, progress=run.progress,
+                             simulator=run.simulator)
+    print((run.out / "calibration.md").read_text())
+    for s, v in result["summary"].items():
+        print(f"{s}: truth in the 90 % HPD region in {v['inside_90']['hpd']}/{v['cases']} cases")
+    print(f"{run.simulated} simulations run, {run.from_store} results from the store, {result['wall_seconds']:.0f} s; "
+          f"report in {run.out} (calibration.json, calibration.md, reliability.png)")
+    return 0
