@@ -143,6 +143,7 @@ def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *,
         return rec
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    stored = store.count() if store is not None else 0
     sim = config["simulator"]
     # 1. footage, as an experiment folder (the estimate and the posterior read it like real footage)
     shot = E.emulate(truth, [setup], density=DENSITY, preset=footage_preset(config["preset"], setting), store=store,
@@ -187,6 +188,7 @@ def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *,
                                                       "variance")},
         "emulator": a.summary["emulator"],
         "wall_seconds": {"estimate": t_est, "total": time.perf_counter() - t0},
+        "simulations_run": (store.count() - stored) if store is not None else None,
     }
     write_json(done, rec)
     return rec

@@ -106,6 +106,7 @@ def test_tiny_study_runs_and_resumes_without_simulating(tmp_path):
     simulated = log.read_text().splitlines()
     assert len(simulated) == len(set(simulated)) > 0  # every simulation ran once
     res = json.loads((out / "calibration.json").read_text())
+    assert sum(c["simulations_run"] for c in res["cases"]) == len(simulated)
     s = res["summary"]["same"]
     assert s["cases"] == 2 and "finer" not in res["summary"]
     levels = [c["credible_level"] for c in res["cases"]]
@@ -124,6 +125,7 @@ def test_tiny_study_runs_and_resumes_without_simulating(tmp_path):
     assert log.read_text().splitlines() == simulated
     again = json.loads((out / "calibration.json").read_text())
     assert [c["credible_level"] for c in again["cases"]] == levels
+    assert again["cases"][1]["simulations_run"] == 0
 
 
 def test_bad_options_are_one_line_exit_2(tmp_path):

@@ -40,14 +40,16 @@ def run(args: argparse.Namespace) -> int:
     check_run_options(args)
     settings = C.SETTINGS if args.setting == "both" else (args.setting,)
     with open_run(args) as run:
+        stored = run.store.count()
         result = C.run_study(run.out, cases=args.cases, settings=settings, preset=args.preset,
                              generations=args.generations, new_simulations=args.new_simulations,
                              half_width=args.half_width, seed=args.seed, min_ess=args.min_ess,
                              max_steps=args.max_steps, store=run.store, executor=run.executor, progress=run.progress,
                              simulator=run.simulator)
+        simulated = run.store.count() - stored
     print((run.out / "calibration.md").read_text())
     for s, v in result["summary"].items():
         print(f"{s}: truth in the 90 % HPD region in {v['inside_90']['hpd']}/{v['cases']} cases")
-    print(f"{run.simulated} simulations run, {run.from_store} results from the store, {result['wall_seconds']:.0f} s; "
+    print(f"{simulated} simulations run (the rest from the store), {result['wall_seconds']:.0f} s; "
           f"report in {run.out} (calibration.json, calibration.md, reliability.png)")
     return 0
