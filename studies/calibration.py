@@ -262,14 +262,14 @@ def summary(recs: list[dict]) -> dict:
 
 def table_markdown(recs: list[dict], summ: dict) -> str:
     lines = ["| setting | case | truth (eta, n, sigma_y) | setup | E_rel | HPD level | ellipsoid level | "
-             "in 90 % HPD | in 90 % interval (eta, n, sigma_y) | ESS | s^2 | wall [s] |",
-             "|---|---:|---|---|---:|---:|---:|---|---|---:|---:|---:|"]
+             "in 90 % HPD | in 90 % interval (eta, n, sigma_y) | ESS | N_eff | s^2 | wall [s] |",
+             "|---|---:|---|---|---:|---:|---:|---|---|---:|---:|---:|---:|"]
     for r in recs:
         t, lv = r["truth"], r["credible_level"]
         per = " ".join("y" if lv["per_parameter"][p] <= NOMINAL else "n" for p in PARAMETERS)
         lines.append(f"| {r['setting']} | {r['case']} | {t['eta']:.3g}, {t['n']:.3g}, {t['sigma_y']:.3g} | "
                      f"{r['setup']} | {r['e_rel']:.3f} | {lv['hpd']:.2f} | {lv['ellipsoid']:.2f} | "
-                     f"{'yes' if lv['hpd'] <= NOMINAL else 'no'} | {per} | {r['posterior']['ess']:.0f} | "
+                     f"{'yes' if lv['hpd'] <= NOMINAL else 'no'} | {per} | {r['posterior']['ess']:.0f} | {r['noise']['n_eff']:.0f} | "
                      f"{r['noise']['variance']:.2e} | {r['wall_seconds']['total']:.0f} |")
     lines += ["", "| setting | cases | 90 % HPD | 90 % ellipsoid | 90 % intervals jointly | eta | n | sigma_y | "
               "truth in trust region | median E_rel |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
@@ -312,9 +312,10 @@ def plot_reliability(path, summ: dict) -> Path:
         ax.set_aspect("equal")
         ax.set_xlabel("nominal level", fontsize=8)
         ax.set_ylabel("fraction of cases covered", fontsize=8)
-        ax.set_title(f"footage: {s} model ({n} cases)", fontsize=9)
+        ax.set_title(f"footage by the {'estimating' if s == 'same' else 'finer'} model ({n} case{'s' * (n != 1)})",
+                     fontsize=9)
         ax.tick_params(labelsize=7)
-    axes[0][0].legend(fontsize=6, loc="upper left")
+    axes[0][0].legend(fontsize=6, loc="lower right")
     return save_figure(fig, path)
 
 
