@@ -9,7 +9,7 @@ from studies.commands.context import add_preset_option, add_run_options, check_r
 def register(study_subparsers) -> None:
     """Add ``calibration`` to the ``study`` sub-command's parsers."""
     p = study_subparsers.add_parser(
-        "calibration", help="does the posterior's 90 % credible region hold the truth? (emulated footage)",
+        "calibration", help="does the posterior's 90 %% credible region hold the truth? (emulated footage)",
         description="Materials by a Sobol design over the material space, one random setup each; footage simulated "
         "by the estimating model ('same') or at half its cell width ('finer'); a one-setup estimate, then the "
         "posterior of `virheo report`; records the credible level of the truth. Writes calibration.json, "
