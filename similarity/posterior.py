@@ -253,6 +253,7 @@ class Analysis:
     emulator: object
     summary: dict
     frames: list
+    log_prob: Callable[[np.ndarray], np.ndarray]  # the sampled log-posterior (normalised space, vectorised)
 
 
 def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, half_width: float = 0.1,
@@ -363,4 +364,4 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
         summary["next_setup_perpendicular"] = {"error": str(exc)}
     np.save(run.folder / "posterior_samples.npy", post.samples)
     write_json(run.folder / "posterior.json", summary)
-    return Analysis(run, post, noise, emu, summary, frames)
+    return Analysis(run, post, noise, emu, summary, frames, log_prob)

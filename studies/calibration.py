@@ -165,17 +165,8 @@ def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *,
                 half_width=config["half_width"], seed=seed, min_ess=config["min_ess"],
                 max_steps=config["max_steps"], discretisation=True, progress=progress)
     lo, hi = (np.asarray(v, float) for v in a.summary["emulator"]["trust_region"])
-
-    def log_density(x):  # the sampled log-posterior: eq. (1) on the emulated loss inside the trust region
-        x = np.atleast_2d(x)
-        inside = np.all((x >= lo) & (x <= hi), axis=1)
-        out = np.full(len(x), -np.inf)
-        if inside.any():
-            out[inside] = a.noise.log_likelihood(a.emulator.predict(x[inside]))
-        return out
-
     x_true = normalize(truth.as_array())
-    levels = credible_levels(a.posterior.samples, x_true, log_density=log_density)
+    levels = credible_levels(a.posterior.samples, x_true, log_density=a.log_prob)
     post = a.summary["posterior"]
     rec = {
         "case": index, "setting": setting, "config": config, "truth": truth.to_dict(),
