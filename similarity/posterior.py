@@ -233,12 +233,13 @@ def discretisation_error(run: Run, executor=None) -> float:
     model = run.preset.final.resolved()
     fine = Discretisation(model.cell_mm / 2.0, model.ppc)
 
-    def frames(disc, ex):
+    ex = executor if executor is not None else batch.InlineExecutor()
+
+    def frames(disc):
         reqs = [simulation_request(run.estimate, e, disc, run.simulator) for e in run.experiments]
         return [r.silhouettes if r.ok else None for r in batch.evaluate(reqs, store=run.store, executor=ex)]
 
-    coarse = frames(model, executor if executor is not None else batch.InlineExecutor())
-    refined = frames(fine, executor if executor is not None else batch.InlineExecutor())
+    coarse, refined = frames(model), frames(fine)
     vals = [video_loss(a, b) for a, b in zip(coarse, refined) if a is not None and b is not None]
     return float(np.mean(vals)) if vals else 0.0
 

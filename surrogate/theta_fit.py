@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 from sklearn.linear_model import Ridge
+from sklearn.model_selection import LeaveOneGroupOut, cross_val_predict
 from sklearn.pipeline import Pipeline
 from sklearn.preprocessing import FunctionTransformer, PolynomialFeatures, StandardScaler
 
@@ -203,18 +204,10 @@ def fit(x, c_pa, groups=None, *, domain, sigma_eps: float = 1e-4, c_extent_pa=(5
     if len(labels) < 3:
         raise ValueError(f"need matched landscapes of at least 3 materials, got {len(labels)}")
     pipe = make_pipeline(domain, sigma_eps)
-    scale = pipe[:3].fit(x)  # the scaler does not depend on the training rows
-    z = scale.transform(x)
+    z = pipe[:3].fit_transform(x)  # the scaler does not depend on the training rows
     alphas = np.asarray(alphas, dtype=float)
-    sq = np.zeros(len(alphas))
-    for g in labels:  # ridge with intercept for every alpha at once, through the SVD of the centred rows
-        test = groups == g
-        zm, ym = z[~test].mean(axis=0), y[~test].mean()
-        u, sv, vt = np.linalg.svd(z[~test] - zm, full_matrices=False)
-        uy = u.T @ (y[~test] - ym)
-        coef = (vt.T * sv) @ (uy[:, None] / (sv[:, None] ** 2 + alphas[None]))  # (features, alphas)
-        r = ym + (z[test] - zm) @ coef - y[test][:, None]
-        sq += np.sum(r * r, axis=0)
+    sq = np.array([np.sum((cross_val_predict(Ridge(alpha=a), z, y, groups=groups, cv=LeaveOneGroupOut()) - y) ** 2)
+                   for a in alphas])
     best = int(np.argmin(sq))
     pipe.set_params(ridge__alpha=float(alphas[best]))
     pipe.fit(x, y)

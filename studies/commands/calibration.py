@@ -3,7 +3,8 @@ from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real
+from studies.commands.context import (add_posterior_options, add_preset_option, add_run_options, check_posterior_options,
+                                      check_run_options, integer, open_run)
 
 
 def register(study_subparsers) -> None:
@@ -17,13 +18,7 @@ def register(study_subparsers) -> None:
     p.add_argument("--cases", type=integer, default=20, metavar="N", help="materials (one setup each; default 20)")
     p.add_argument("--setting", choices=("same", "finer", "both"), default="both",
                    help="footage by the estimating model, at half its cell width, or both (default both)")
-    p.add_argument("--new-simulations", type=integer, default=24, metavar="K",
-                   help="space-filling candidates simulated for each case's emulator (default 24)")
-    p.add_argument("--half-width", type=real, default=0.1, metavar="W",
-                   help="half-width of the emulator's box around the estimate, normalised space (default 0.1)")
-    p.add_argument("--min-ess", type=real, default=1000.0, metavar="N",
-                   help="effective posterior samples per case (default 1000)")
-    p.add_argument("--max-steps", type=integer, default=20000, metavar="N", help="most emcee steps per case (default 20000)")
+    add_posterior_options(p)
     p.add_argument("--seed", type=integer, default=0, help="seed of the design, CMA-ES and emcee (default 0)")
     add_preset_option(p, default="demo")
     add_run_options(p, default_out="./virheo-calibration")
@@ -35,8 +30,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.cases < 1:
         raise ValueError(f"--cases {args.cases} must be >= 1")
-    if args.new_simulations < 0 or args.min_ess <= 0 or args.max_steps < 1 or not 0 < args.half_width <= 0.5:
-        raise ValueError("--new-simulations >= 0, --min-ess > 0, --max-steps >= 1 and 0 < --half-width <= 0.5 required")
+    check_posterior_options(args)
     check_run_options(args)
     settings = C.SETTINGS if args.setting == "both" else (args.setting,)
     with open_run(args) as run:

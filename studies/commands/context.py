@@ -101,6 +101,22 @@ def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None, gene
     p.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
+def add_posterior_options(p: argparse.ArgumentParser) -> None:
+    """The options of the posterior of ``similarity.posterior.analyse`` (``virheo report``, ``study calibration``)."""
+    p.add_argument("--new-simulations", type=integer, default=24, metavar="N",
+                   help="space-filling candidates simulated for the emulator, each in every setup (default 24)")
+    p.add_argument("--half-width", type=real, default=0.1, metavar="W",
+                   help="half-width of the emulator's box around the estimate, normalised space (default 0.1)")
+    p.add_argument("--min-ess", type=real, default=1000.0, metavar="N", help="effective samples to reach (default 1000)")
+    p.add_argument("--max-steps", type=integer, default=20000, metavar="N", help="most emcee steps (default 20000)")
+
+
+def check_posterior_options(args) -> None:
+    """ValueError (one line) for posterior options out of range."""
+    if args.new_simulations < 0 or args.min_ess <= 0 or args.max_steps < 1 or not 0 < args.half_width <= 0.5:
+        raise ValueError("--new-simulations >= 0, --min-ess > 0, --max-steps >= 1 and 0 < --half-width <= 0.5 required")
+
+
 def check_run_options(args) -> None:
     """The project's own messages for out-of-range numbers and paths of the wrong kind."""
     if getattr(args, "generations", None) is not None and args.generations < 1:

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from studies.commands.context import add_posterior_options, check_posterior_options
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -17,12 +19,7 @@ def register(subparsers) -> None:
     p.add_argument("--rheometer", default=None, metavar="CSV", help="rheometer flow-curve export to draw over the band")
     p.add_argument("--out", default=None, metavar="DIR", help="report folder (default RUN/report)")
     p.add_argument("--store", default=None, metavar="PATH", help="simulation store (default RUN/store)")
-    p.add_argument("--new-simulations", type=int, default=24, metavar="N",
-                   help="space-filling candidates simulated for the emulator, each in every setup (default 24)")
-    p.add_argument("--half-width", type=float, default=0.1, metavar="W",
-                   help="half-width of the emulator's box around the estimate, normalised space (default 0.1)")
-    p.add_argument("--min-ess", type=float, default=1000.0, metavar="N", help="effective samples to reach (default 1000)")
-    p.add_argument("--max-steps", type=int, default=20000, metavar="N", help="most emcee steps (default 20000)")
+    add_posterior_options(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the space-filling batch and of emcee (default 0)")
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
     p.add_argument("--no-discretisation", action="store_true",
@@ -48,8 +45,7 @@ def run(args: argparse.Namespace) -> int:
 
     folder = Path(args.run)
     read_result(folder)  # a folder without an estimate stops here
-    if args.new_simulations < 0 or args.min_ess <= 0 or args.max_steps < 1 or not 0 < args.half_width <= 0.5:
-        raise ValueError("--new-simulations >= 0, --min-ess > 0, --max-steps >= 1 and 0 < --half-width <= 0.5 required")
+    check_posterior_options(args)
     curve = _read_rheometer(args.rheometer) if args.rheometer else None  # bad files stop here, before any work
     progress = None if args.quiet else (lambda ev: print(ev["text"]) if ev.get("event") == "message" else None)
     store = Store(args.store) if args.store else None
