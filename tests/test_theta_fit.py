@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from studies.cli import main
-from studies.landscapes import grid_offsets, input_domain
+from studies.landscapes import grid_offsets
+from studies.theta_study import input_domain
 from surrogate import theta_fit as F
 from surrogate.theta import ThetaMap, load
 

@@ -34,18 +34,19 @@ def register(subparsers) -> None:
 
 def run_fit(args: argparse.Namespace) -> int:
     from studies import landscapes as LS
+    from studies import theta_study as TS
     from studies.report import write_json
 
     studies = [LS.load(s) for s in args.study]
     out = Path(args.out)
     if not out.parent.resolve().is_dir():
         raise FileNotFoundError(f"--out: folder {out.parent} does not exist")
-    theta, report = LS.fit_theta(studies, test_fraction=args.test_fraction, seed=args.seed, name=args.name,
+    theta, report = TS.fit_theta(studies, test_fraction=args.test_fraction, seed=args.seed, name=args.name,
                                  prior=args.prior)
     theta.save(out)
     from surrogate.theta import load
 
-    report["design"] = LS.compare_designs(theta, load("reference"), count=args.compare, seed=args.seed)
+    report["design"] = TS.compare_designs(theta, load("reference"), count=args.compare, seed=args.seed)
     report_path = out.with_name(out.stem + "_report.json")
     write_json(report_path, report)
     s = report["fit"]
