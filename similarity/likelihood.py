@@ -12,7 +12,10 @@ with L the mean loss over all frames of all setups (the CMA-ES objective) and N_
 
 Scale.  Nothing is hand-set: at the estimate M^ the residual *is* the noise, and (1) there equals
 -N_eff / 2, the expected chi-square of N_eff independent residuals.
-* N_eff (``method="components"``, default) counts the residual's connected components at M^ (8-connected,
+* N_eff (``method="frames"``) counts one independent residual per frame: under model error the residual
+  bands of one frame share one cause (the simulated material flows differently from the captured one)
+  and move together when M changes, so a frame is one observation of the mismatch.
+  ``method="components"`` counts the residual's connected components at M^ (8-connected,
   at least ``MIN_COMPONENT_PX`` pixels) over all frames: the pixels of one band share one cause (a front
   that ran too far, a top that sank too little) and count once.  ``method="autocorrelation"`` counts
   sum_k |P| / A_k instead, with A_k the product of the residual's integral correlation lengths along
@@ -36,7 +39,7 @@ import numpy as np
 
 
 MIN_COMPONENT_PX = 3
-METHODS = ("components", "autocorrelation")
+METHODS = ("frames", "components", "autocorrelation")
 
 
 def components(residual: np.ndarray) -> int:
@@ -130,7 +133,9 @@ def noise_scale(simulated, captured, *, discretisation: float = 0.0, emulator: f
             r = s ^ c
             n_pix += r.size
             misfit += float(np.count_nonzero(r))
-            if method == "components":
+            if method == "frames":
+                n_eff += 1
+            elif method == "components":
                 n_eff += max(1, components(r))
             else:
                 n_eff += r.size / correlation_area(r)

@@ -28,6 +28,10 @@ from similarity.run_folder import Run, load_run, read_posterior, read_result  # 
 from similarity.space import Material, denormalize, normalize
 
 QUANTILES = (0.05, 0.5, 0.95)
+NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
+MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
+MAX_CUT = 0.02  # largest posterior fraction allowed in the outer EDGE of the box at an inner face
+EDGE = 0.05
 FLOW_RATES = np.logspace(-2, 4, 121)  # 1/s, the range of the flow-curve plots
 
 
@@ -244,6 +248,30 @@ def discretisation_error(run: Run, executor=None) -> float:
     return float(np.mean(vals)) if vals else 0.0
 
 
+def cut_fraction(samples, lo, hi) -> float:
+    """Fraction of samples in the outer ``EDGE`` of the box [lo, hi] next to a face inside (0, 1)^d:
+    where the box, not the likelihood, ends the posterior."""
+    samples, lo, hi = np.atleast_2d(samples), np.asarray(lo, float), np.asarray(hi, float)
+    band = EDGE * (hi - lo)
+    at_lo = (samples < lo + band) & (lo > 1e-9)
+    at_hi = (samples > hi - band) & (hi < 1 - 1e-9)
+    return float(np.mean(np.any(at_lo | at_hi, axis=1))) if len(samples) else 0.0
+
+
+def _log_posterior(noise, emu, lo, hi):
+    """Vectorised log-posterior in the normalised space: eq. (1) of the likelihood on the emulated loss,
+    uniform prior cut to the box [lo, hi]."""
+    def log_prob(x):
+        x = np.atleast_2d(x)
+        inside = np.all((x >= lo) & (x <= hi), axis=1)
+        out = np.full(len(x), -np.inf)
+        if inside.any():
+            out[inside] = noise.log_likelihood(emu.predict(x[inside]))
+        return out
+
+    return log_prob
+
+
 @dataclass
 class Analysis:
     """Everything :func:`analyse` computes for a run (``summary`` is what posterior.json holds)."""
@@ -259,7 +287,7 @@ class Analysis:
 
 def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, half_width: float = 0.1,
             seed: int = 0, nwalkers: int = 32, min_ess: float = 1000.0, max_steps: int = 20000,
-            discretisation: bool = True, progress: Callable[[dict], None] | None = None) -> Analysis:
+            discretisation: bool = True, noise_count: str = NOISE_COUNT, progress: Callable[[dict], None] | None = None) -> Analysis:
     """Noise scale, emulator, posterior, ellipsoids and ranked next setups of a run; writes
     ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder."""
     from mpm.store import digest
@@ -282,44 +310,48 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
         raise ValueError(f"{run.folder}: the estimate's simulation failed; no posterior")
     delta = discretisation_error(run, executor) if discretisation else 0.0
     say(f"discretisation error (loss, cell vs half cell): {delta:.5f}")
-    noise = noise_scale(frames, [e.frames for e in run.experiments], discretisation=delta)
-    # emulator training set: the archive near the estimate + a space-filling batch of new simulations
-    X_old = archive(run, x_hat, half_width)
-    X_new = space_filling(x_hat, half_width, new_simulations, seed=seed) if new_simulations else np.zeros((0, 3))
-    # a re-run finds the new batch in the store: count it once, so the training set (and the backend) stay the same
-    X_old = X_old[~np.any(np.all(np.abs(X_old[:, None] - X_new[None]) < 1e-9, axis=2), axis=1)]
-    say(f"emulator: {len(X_old)} simulated candidates from the store, {len(X_new)} new")
-    y_old = mean_losses(run, X_old, executor)
-    y_new = mean_losses(run, X_new, executor)
-    X = np.vstack([X_old, X_new, x_hat[None]])
-    y = np.concatenate([y_old, y_new, mean_losses(run, x_hat[None], executor)])
-    ok = np.isfinite(y)
-    X, y = X[ok], y[ok]
+    base_noise = noise_scale(frames, [e.frames for e in run.experiments], discretisation=delta, method=noise_count)
+    # The emulator's box grows (half-width doubled, a new space-filling batch each time) while the posterior
+    # leans on one of its inner faces: a cut posterior is the box's, not the footage's.
+    X_all, y_all = np.zeros((0, 3)), np.zeros(0)
     rng = np.random.default_rng(seed)
-    test = np.zeros(len(y), bool)
-    test[rng.choice(len(y), size=max(1, len(y) // 5), replace=False)] = True
-    emu = LossEmulator(seed=seed)
-    validation = emu.validate(X[~test], y[~test], X[test], y[test])
-    noise = noise.with_emulator(validation.rmse)
-    say(f"emulator held-out RMSE {validation.rmse:.2e} (loss range {validation.loss_range:.2e}); "
-        f"noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}")
-    lo, hi = np.maximum(emu.lower, 0.0), np.minimum(emu.upper, 1.0)
-
-    def log_prob(x):
-        x = np.atleast_2d(x)
-        inside = np.all((x >= lo) & (x <= hi), axis=1)
-        out = np.full(len(x), -np.inf)
-        if inside.any():
-            out[inside] = noise.log_likelihood(emu.predict(x[inside]))
-        return out
-
-    key = digest({"X": X.round(12).tolist(), "y": y.tolist(), "noise": noise.to_dict(), "seed": seed,
-                  "nwalkers": nwalkers})[:16]
-    post = sample(log_prob, x_hat, nwalkers=nwalkers, seed=seed, min_ess=min_ess, max_steps=max_steps,
-                  backend=run.folder / "posterior.h5", backend_name=f"mcmc-{key}", progress=progress)
+    widths = [min(half_width * 2.0**k, 1.0) for k in range(MAX_EXPANSIONS + 1)]
+    batches = [space_filling(x_hat, w, new_simulations, seed=seed + k) if new_simulations else np.zeros((0, 3))
+               for k, w in enumerate(widths)]
+    for attempt, half_width in enumerate(widths):
+        X_new = batches[attempt]
+        X_old = np.vstack([archive(run, x_hat, half_width), x_hat[None]])
+        # a re-run finds every batch of new simulations in the store: those are not archive, so the training
+        # set (and the backend) stay the same
+        known = np.vstack([*batches, X_all])
+        X_old = X_old[~np.any(np.all(np.abs(X_old[:, None] - known[None]) < 1e-9, axis=2), axis=1)]
+        say(f"emulator box +-{half_width:g}: {len(X_old)} simulated candidates from the store, {len(X_new)} new")
+        X_add = np.vstack([X_old, X_new])
+        y_add = mean_losses(run, X_add, executor)
+        X_all, y_all = np.vstack([X_all, X_add]), np.concatenate([y_all, y_add])
+        ok = np.isfinite(y_all)
+        X, y = X_all[ok], y_all[ok]
+        test = np.zeros(len(y), bool)
+        test[rng.choice(len(y), size=max(1, len(y) // 5), replace=False)] = True
+        emu = LossEmulator(seed=seed)
+        validation = emu.validate(X[~test], y[~test], X[test], y[test])
+        noise = base_noise.with_emulator(validation.rmse)
+        say(f"emulator held-out RMSE {validation.rmse:.2e} (loss range {validation.loss_range:.2e}); "
+            f"noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}")
+        lo, hi = np.maximum(emu.lower, 0.0), np.minimum(emu.upper, 1.0)
+        log_prob = _log_posterior(noise, emu, lo, hi)
+        key = digest({"X": X.round(12).tolist(), "y": y.tolist(), "noise": noise.to_dict(), "seed": seed,
+                      "nwalkers": nwalkers})[:16]
+        post = sample(log_prob, x_hat, nwalkers=nwalkers, seed=seed, min_ess=min_ess, max_steps=max_steps,
+                      backend=run.folder / "posterior.h5", backend_name=f"mcmc-{key}", progress=progress)
+        cut = cut_fraction(post.samples, lo, hi)
+        if cut <= MAX_CUT or half_width >= 1.0:
+            break
+        say(f"{100 * cut:.1f} % of the posterior lies at an inner face of the emulator's box: growing it")
     summary = {"estimate": run.estimate.to_dict(), "estimate_normalised": x_hat.tolist(),
                "setups": [str(s) for s in run.setups], "noise": noise.to_dict(),
                "emulator": validation.to_dict() | {"trust_region": [lo.tolist(), hi.tolist()],
+                                                   "half_width": half_width, "cut_fraction": cut,
                                                    "roughness_std": emu.noise_std},
                "posterior": post.summary()}
     if run.truth is not None:

@@ -37,6 +37,7 @@ import numpy as np
 
 from mpm import batch
 from mpm.files import read_json
+from similarity.posterior import NOISE_COUNT
 from similarity.space import Material, Setup, denormalize, e_rel, normalize
 from studies.report import save_figure, write_json
 
@@ -117,13 +118,14 @@ def coverage(levels_of_truth, nominal=LEVELS) -> np.ndarray:
 
 
 # -- one case ------------------------------------------------------------------------------------------
-def _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, simulator) -> dict:
+def _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, simulator,
+            noise_count) -> dict:
     from similarity.estimate import get_preset
 
     p = get_preset(preset)
     return {"preset": p.name, "generations": int(generations or p.generations), "new_simulations": int(new_simulations),
             "half_width": float(half_width), "seed": int(seed), "min_ess": float(min_ess), "max_steps": int(max_steps),
-            "simulator": simulator}
+            "simulator": simulator, "noise_count": noise_count}
 
 
 def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *, config: dict, store, executor,
@@ -163,7 +165,8 @@ def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *,
     # 3. the posterior of `virheo report`
     a = analyse(folder, store=store, executor=executor, new_simulations=config["new_simulations"],
                 half_width=config["half_width"], seed=seed, min_ess=config["min_ess"],
-                max_steps=config["max_steps"], discretisation=True, progress=progress)
+                max_steps=config["max_steps"], discretisation=True, noise_count=config["noise_count"],
+                progress=progress)
     lo, hi = (np.asarray(v, float) for v in a.summary["emulator"]["trust_region"])
     x_true = normalize(truth.as_array())
     levels = credible_levels(a.posterior.samples, x_true, log_density=a.log_prob)
@@ -193,11 +196,12 @@ def case_folder(out, setting: str, index: int) -> Path:
 def run_study(out, *, cases: int = 20, settings=SETTINGS, preset="demo", generations: int | None = None,
               new_simulations: int = 24, half_width: float = 0.1, seed: int = 0, min_ess: float = 1000.0,
               max_steps: int = 20000, store=None, executor=None, progress=None,
-              simulator: str = batch.DEFAULT_SIMULATOR) -> dict:
+              simulator: str = batch.DEFAULT_SIMULATOR, noise_count: str = NOISE_COUNT) -> dict:
     """Run (or resume) ``cases`` cases in each of ``settings``, case by case, and write the outputs."""
     for s in settings:
         footage_preset(preset, s)  # unknown settings stop here
-    config = _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, simulator)
+    config = _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, simulator,
+                     noise_count)
     t0 = time.perf_counter()
     for i, (truth, setup) in enumerate(design(cases, seed)):
         for s in settings:

@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
                              generations=args.generations, new_simulations=args.new_simulations,
                              half_width=args.half_width, seed=args.seed, min_ess=args.min_ess,
                              max_steps=args.max_steps, store=run.store, executor=run.executor, progress=run.progress,
-                             simulator=run.simulator)
+                             simulator=run.simulator, noise_count=args.noise_count)
         simulated = run.store.count() - stored
     print((run.out / "calibration.md").read_text())
     for s, v in result["summary"].items():

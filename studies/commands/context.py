@@ -102,6 +102,9 @@ def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None, gene
 
 
 def add_posterior_options(p: argparse.ArgumentParser) -> None:
+    from similarity.likelihood import METHODS
+    from similarity.posterior import NOISE_COUNT
+
     """The options of the posterior of ``similarity.posterior.analyse`` (``virheo report``, ``study calibration``)."""
     p.add_argument("--new-simulations", type=integer, default=24, metavar="N",
                    help="space-filling candidates simulated for the emulator, each in every setup (default 24)")
@@ -109,6 +112,9 @@ def add_posterior_options(p: argparse.ArgumentParser) -> None:
                    help="half-width of the emulator's box around the estimate, normalised space (default 0.1)")
     p.add_argument("--min-ess", type=real, default=1000.0, metavar="N", help="effective samples to reach (default 1000)")
     p.add_argument("--max-steps", type=integer, default=20000, metavar="N", help="most emcee steps (default 20000)")
+    p.add_argument("--noise-count", choices=METHODS, default=NOISE_COUNT,
+                   help=f"independent residuals counted per frame: one (frames) or one per residual blob "
+                        f"(components) or per correlation area (default {NOISE_COUNT})")
 
 
 def check_posterior_options(args) -> None:

@@ -53,7 +53,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         analysis = analyse(folder, store=store, executor=executor, new_simulations=args.new_simulations,
                            half_width=args.half_width, seed=args.seed, min_ess=args.min_ess, max_steps=args.max_steps,
-                           discretisation=not args.no_discretisation, progress=progress)
+                           discretisation=not args.no_discretisation, noise_count=args.noise_count,
+                           progress=progress)
     finally:
         batch.shutdown(executor)
     page = write_report(Path(args.out) if args.out else folder / "report", analysis, rheometer=curve)
