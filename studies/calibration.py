@@ -223,6 +223,11 @@ def records(out) -> list[dict]:
     for s in SETTINGS:
         for p in sorted((Path(out) / "cases" / s).glob("case_*/case.json")):
             found.append(read_json(p))
+    for r in found:  # sharpness: mean width of the 90 % intervals in the normalised space
+        samples = case_folder(out, r["setting"], r["case"]) / "posterior_samples.npy"
+        if "width_90" not in r and samples.is_file():
+            q = np.quantile(np.load(samples), [0.05, 0.95], axis=0)
+            r["width_90"] = float(np.mean(q[1] - q[0]))
     configs = {str(r["config"]) for r in found}
     if len(configs) > 1:
         raise ValueError(f"{out} holds cases made with different settings; use one --out per configuration")
@@ -248,6 +253,7 @@ def summary(recs: list[dict]) -> dict:
                             **{p: coverage([v["per_parameter"][p] for v in lv]).tolist() for p in PARAMETERS}},
             "truth_in_trust_region": int(sum(r["truth_in_trust_region"] for r in rs)),
             "median_e_rel": float(np.median([r["e_rel"] for r in rs])),
+            "median_width_90": float(np.median([r.get("width_90", np.nan) for r in rs])),
             "median_ess": float(np.median([r["posterior"]["ess"] for r in rs])),
             "converged": int(sum(bool(r["posterior"]["converged"]) for r in rs)),
             "mean_wall_seconds": float(np.mean([r["wall_seconds"]["total"] for r in rs])),
@@ -257,17 +263,20 @@ def summary(recs: list[dict]) -> dict:
 
 def table_markdown(recs: list[dict], summ: dict) -> str:
     lines = ["| setting | case | truth (eta, n, sigma_y) | setup | E_rel | HPD level | ellipsoid level | "
-             "in 90 % HPD | in 90 % interval (eta, n, sigma_y) | ESS | N_eff | s^2 | wall [s] |",
-             "|---|---:|---|---|---:|---:|---:|---|---|---:|---:|---:|---:|"]
+             "in 90 % HPD | in 90 % interval (eta, n, sigma_y) | 90 % interval width | box +- | ESS | N_eff | s^2 | "
+             "wall [s] |",
+             "|---|---:|---|---|---:|---:|---:|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in recs:
         t, lv = r["truth"], r["credible_level"]
         per = " ".join("y" if lv["per_parameter"][p] <= NOMINAL else "n" for p in PARAMETERS)
         lines.append(f"| {r['setting']} | {r['case']} | {t['eta']:.3g}, {t['n']:.3g}, {t['sigma_y']:.3g} | "
                      f"{r['setup']} | {r['e_rel']:.3f} | {lv['hpd']:.2f} | {lv['ellipsoid']:.2f} | "
-                     f"{'yes' if lv['hpd'] <= NOMINAL else 'no'} | {per} | {r['posterior']['ess']:.0f} | {r['noise']['n_eff']:.0f} | "
+                     f"{'yes' if lv['hpd'] <= NOMINAL else 'no'} | {per} | {r.get('width_90', float('nan')):.2f} | "
+                     f"{r['emulator'].get('half_width', float('nan')):g} | {r['posterior']['ess']:.0f} | {r['noise']['n_eff']:.0f} | "
                      f"{r['noise']['variance']:.2e} | {r['wall_seconds']['total']:.0f} |")
     lines += ["", "| setting | cases | 90 % HPD | 90 % ellipsoid | 90 % intervals jointly | eta | n | sigma_y | "
-              "truth in trust region | median E_rel |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+              "truth in trust region | median E_rel | median 90 % interval width |",
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for s, v in summ.items():
         n = v["cases"]
         cov = v["coverage_90"]
@@ -276,7 +285,7 @@ def table_markdown(recs: list[dict], summ: dict) -> str:
                      f"{v['inside_90']['ellipsoid']}/{n} ({100 * cov['ellipsoid']:.0f} %) | "
                      f"{v['inside_90']['intervals']}/{n} ({100 * cov['intervals']:.0f} %) | "
                      + " | ".join(f"{100 * per[p]:.0f} %" for p in PARAMETERS)
-                     + f" | {v['truth_in_trust_region']}/{n} | {v['median_e_rel']:.3f} |")
+                     + f" | {v['truth_in_trust_region']}/{n} | {v['median_e_rel']:.3f} | {v['median_width_90']:.2f} |")
     return "\n".join(lines) + "\n"
 
 
