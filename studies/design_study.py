@@ -221,7 +221,8 @@ def table_markdown(recs: list[dict], summ: dict) -> str:
     for k, v in summ["paired"].items():
         lines.append(f"| {k} | {v['better']} | {v['equal']} | {v['worse']} | {v['same_second_setup']} |")
     lines += ["", f"Stage 1 shared by the criteria in {summ['stage_1_shared']}/{n} cases; equal simulation budget in "
-              f"{summ['equal_budget']}/{n}; EIG from stage 1's archive belief in {summ['eig_with_archive_belief']}/{n}."]
+              f"{summ['equal_budget']}/{n}; EIG from stage 1's archive belief in "
+              f"{summ['eig_with_archive_belief']}/{n}."]
     return "\n".join(lines) + "\n"
 
 

@@ -14,7 +14,8 @@ def register(study_subparsers) -> None:
         "ViRheometry once per criterion for the second setup (expected information gain under stage 1's belief, "
         "the paper's perpendicularity, random), sharing stage 1. Records E_rel after two setups. Writes "
         "design.json, design.md and e_rel.png. Resumes from its store and its finished cases.")
-    p.add_argument("--cases", type=integer, default=20, metavar="N", help="materials (one first setup each; default 20)")
+    p.add_argument("--cases", type=integer, default=20, metavar="N",
+                   help="materials (one first setup each; default 20)")
     p.add_argument("--seed", type=integer, default=0, help="seed of the design, setups and CMA-ES (default 0)")
     add_preset_option(p, default="demo")
     add_run_options(p, default_out="./virheo-design")
