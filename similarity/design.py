@@ -32,6 +32,7 @@ from surrogate.theta import ThetaMap, load
 
 from poiseuille import hessian
 
+from .belief import PRIOR_PRECISION
 from .normals import loss_normal, loss_normals, perpendicularity
 from .space import EXTENT, SETUP_RANGE_MM, Material, Setup, candidate_setups
 
@@ -130,7 +131,7 @@ def _rank_eig(material, done, theta, covariance, scale) -> Ranking:
         raise ValueError(f"setup {bad} gives no plane-Poiseuille flow for this material, so its information is undefined")
     if covariance is None:
         c = float(scale) if scale is not None else DEFAULT_INFORMATION_SCALE
-        covariance = np.linalg.inv(12.0 * np.eye(3) + c * h_done.sum(axis=0))
+        covariance = np.linalg.inv(PRIOR_PRECISION * np.eye(3) + c * h_done.sum(axis=0))
     else:
         covariance = np.asarray(covariance, float)
         if covariance.shape != (3, 3) or not np.all(np.isfinite(covariance)):

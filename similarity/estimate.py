@@ -8,6 +8,7 @@ run resumes where it stopped.
 """
 from __future__ import annotations
 
+import inspect
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -80,6 +81,15 @@ def propose_next_setup(material: Material, done: Sequence[Setup]) -> Setup | Non
     return next_setup(material, list(done))
 
 
+def _takes_stage(propose) -> bool:
+    """Whether ``propose`` accepts a keyword ``stage`` (the finished stage, with its CMA-ES archive)."""
+    try:
+        params = inspect.signature(propose).parameters.values()
+    except (TypeError, ValueError):
+        return False
+    return any(p.name == "stage" and p.kind != p.POSITIONAL_ONLY or p.kind == p.VAR_KEYWORD for p in params)
+
+
 def default_store() -> Store:
     return Store(Path.home() / ".cache" / "virheometry" / "store")
 
@@ -101,7 +111,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
     """Algorithm 1 on ``experiments`` (:class:`mpm.experiment.Experiment`), in order.
 
     Stage k fits the first k experiments.  After every stage the next setup is proposed with
-    ``propose`` (default :func:`similarity.design.next_setup`; None: no proposal); with ``acquire``
+    ``propose(material, done)`` (default :func:`similarity.design.next_setup`; None: no proposal; a
+    proposer that takes a keyword ``stage`` also gets the finished :class:`Stage`); with ``acquire``
     (a callable Setup -> experiment, e.g. an emulator) the proposed setup is filmed and added until
     ``n_setups`` are done.  ``generations`` overrides the preset's per-stage count (not the finishing
     stage's).  ``executor``: any concurrent.futures Executor or dask Client; default: ``workers`` local
@@ -123,7 +134,12 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
     x0 = normalize(center().as_array())
 
     def finish_stage(stage: Stage, done: list[Setup]) -> None:
-        nxt = propose(stage.material, done) if propose else None
+        if propose is None:
+            nxt = None
+        elif _takes_stage(propose):
+            nxt = propose(stage.material, done, stage=stage)
+        else:
+            nxt = propose(stage.material, done)
         stage.next_setup = None if nxt is None else str(Setup(nxt.width_mm, nxt.height_mm))
         stages.append(stage)
 
