@@ -102,6 +102,33 @@ def test_noise_scale_counts_components_and_misfit():
     assert float(ns.log_likelihood(ns.variance)) == pytest.approx(-ns.n_eff / 2)  # chi-square = N_eff at s^2
 
 
+def test_noise_scale_counts_one_residual_per_frame_by_default():
+    from similarity.posterior import NOISE_COUNT
+
+    sim = np.zeros((3, 40, 60), bool)
+    cap = sim.copy()
+    cap[:, 5:8, 5:9] = True
+    cap[:, 20:25, 30:32] = True
+    ns = noise_scale([sim, sim[:2]], [cap, cap[:2]], discretisation=1e-3, method=NOISE_COUNT)
+    assert NOISE_COUNT == "frames" and ns.n_eff == 5 == ns.frames
+    assert float(ns.log_likelihood(ns.variance)) == pytest.approx(-2.5)
+
+
+def test_cut_fraction_counts_only_faces_inside_the_material_space():
+    from similarity.posterior import EDGE, cut_fraction
+
+    rng = np.random.default_rng(0)
+    u = rng.random((200000, 3))
+    lo, hi = np.array([0.2, 0.2, 0.2]), np.array([0.6, 0.6, 0.6])
+    inside = 1.0 - (1.0 - 2 * EDGE) ** 3  # uniform in the box: all six faces are inner faces
+    assert cut_fraction(lo + (hi - lo) * u, lo, hi) == pytest.approx(inside, abs=0.005)
+    lo[0], hi[1] = 0.0, 1.0  # two faces on the material space's own boundary do not cut
+    assert cut_fraction(lo + (hi - lo) * u, lo, hi) == pytest.approx(1.0 - (1 - EDGE) ** 2 * (1 - 2 * EDGE),
+                                                                     abs=0.005)
+    centre = 0.4 + 0.01 * rng.standard_normal((1000, 3))  # a posterior well inside its box
+    assert cut_fraction(centre, np.full(3, 0.2), np.full(3, 0.6)) == 0.0
+
+
 def test_correlation_area_of_block_noise():
     rng = np.random.default_rng(0)
     iid = rng.random((256, 256)) < 0.5
