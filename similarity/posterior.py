@@ -80,9 +80,8 @@ class Posterior:
         }
 
 
-def _open_backend(path, name: str):
-    import emcee
-
+def check_backend(path) -> None:
+    """ValueError (one line) when ``path`` exists but is not a readable HDF5 file."""
     path = Path(path)
     if path.exists():
         import h5py
@@ -93,6 +92,12 @@ def _open_backend(path, name: str):
         except OSError as exc:
             raise ValueError(f"{path}: corrupt posterior backend ({str(exc).splitlines()[0]}); "
                              "delete it to sample again") from None
+
+
+def _open_backend(path, name: str):
+    import emcee
+
+    check_backend(path)
     return emcee.backends.HDFBackend(str(path), name=name)
 
 
@@ -303,6 +308,7 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
             progress({"event": "message", "text": text})
 
     run = load_run(folder, store=store, executor=executor)
+    check_backend(run.folder / "posterior.h5")  # before any simulation
     x_hat = normalize(run.estimate.as_array())
     frames = simulated_frames(run.estimate, run.experiments, preset=run.preset, store=run.store, executor=executor,
                               simulator=run.simulator)

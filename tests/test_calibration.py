@@ -94,7 +94,7 @@ def test_finer_footage_halves_the_cell():
 
 def _study(out, log):
     argv = [sys.executable, "-m", "studies.cli", "study", "calibration", "--cases", "2", "--setting", "same",
-            "--generations", "3", "--new-simulations", "12", "--min-ess", "100", "--max-steps", "500",
+            "--generations", "3", "--new-simulations", "12", "--half-width", "0.5", "--min-ess", "100", "--max-steps", "500",
             "--workers", "0", "--quiet", "--out", str(out)]
     return subprocess.run(argv, env=dict(ENV, FAKE_FORWARD_LOG=str(log)), capture_output=True, text=True, timeout=600)
 

@@ -26,7 +26,7 @@ def reported(tmp_path_factory):
     run = tmp_path_factory.mktemp("report") / "demo"
     proc = _cli("demo", "--out", str(run), "--generations", "3", "--workers", "0", "--quiet")
     assert proc.returncode == 0, proc.stderr
-    proc = _cli("report", str(run), "--workers", "0", "--new-simulations", "8", "--min-ess", "300",
+    proc = _cli("report", str(run), "--workers", "0", "--new-simulations", "8", "--min-ess", "300", "--half-width", "0.5",
                 "--no-discretisation", "--quiet")
     assert proc.returncode == 0, proc.stderr
     return run, proc
