@@ -39,7 +39,7 @@ from mpm import batch
 from mpm.files import read_json
 from similarity.posterior import NOISE_COUNT
 from similarity.space import Material, Setup, denormalize, e_rel, normalize
-from studies.report import save_figure, write_json
+from studies.report import finished_cases, save_figure, write_json, write_study
 
 SETTINGS = ("same", "finer")
 LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliability curve
@@ -218,19 +218,13 @@ def run_study(out, *, cases: int = 20, settings=SETTINGS, preset="demo", generat
 
 
 def records(out) -> list[dict]:
-    """Every finished case under ``out`` (both settings), in setting then case order."""
-    found = []
-    for s in SETTINGS:
-        for p in sorted((Path(out) / "cases" / s).glob("case_*/case.json")):
-            found.append(read_json(p))
+    """Every finished case under ``out`` (both settings), in setting then case order, with its sharpness."""
+    found = finished_cases(out, *(f"cases/{s}/case_*/case.json" for s in SETTINGS))
     for r in found:  # sharpness: mean width of the 90 % intervals in the normalised space
         samples = case_folder(out, r["setting"], r["case"]) / "posterior_samples.npy"
         if "width_90" not in r and samples.is_file():
             q = np.quantile(np.load(samples), [0.05, 0.95], axis=0)
             r["width_90"] = float(np.mean(q[1] - q[0]))
-    configs = {str(r["config"]) for r in found}
-    if len(configs) > 1:
-        raise ValueError(f"{out} holds cases made with different settings; use one --out per configuration")
     return found
 
 
@@ -325,14 +319,9 @@ def plot_reliability(path, summ: dict) -> Path:
 
 def write(out, *, wall_seconds: float | None = None) -> dict:
     """calibration.json, calibration.md and reliability.png from every finished case under ``out``."""
-    out = Path(out)
     recs = records(out)
-    if not recs:
-        raise ValueError(f"{out}: no finished cases")
     summ = summary(recs)
-    result = {"config": recs[0]["config"], "levels": LEVELS.tolist(), "nominal": NOMINAL, "summary": summ,
-              "wall_seconds": wall_seconds, "cases": recs}
-    write_json(out / "calibration.json", result)
-    (out / "calibration.md").write_text(table_markdown(recs, summ))
-    plot_reliability(out / "reliability.png", summ)
-    return result
+    plot_reliability(Path(out) / "reliability.png", summ)
+    return write_study(out, "calibration", {"config": recs[0]["config"], "levels": LEVELS.tolist(),
+                                            "nominal": NOMINAL, "summary": summ, "wall_seconds": wall_seconds,
+                                            "cases": recs}, table_markdown(recs, summ))

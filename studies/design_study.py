@@ -33,7 +33,7 @@ from mpm.files import read_json
 from similarity.proposers import CRITERIA, Eig, Perpendicularity, Random
 from similarity.space import e_rel
 from studies.emulation import GOOD
-from studies.report import save_figure, write_json
+from studies.report import finished_cases, save_figure, write_json, write_study
 
 DENSITY = 1000.0  # kg/m^3
 PAIRS = (("eig", "perpendicularity"), ("perpendicularity", "random"), ("eig", "random"))
@@ -160,10 +160,7 @@ def run_study(out, *, cases: int = 20, preset="demo", generations: int | None = 
 
 def records(out) -> list[dict]:
     """Every finished case under ``out``, in case order."""
-    found = [read_json(p) for p in sorted((Path(out) / "cases").glob("case_*/case.json"))]
-    if len({str(r["config"]) for r in found}) > 1:
-        raise ValueError(f"{out} holds cases made with different settings; use one --out per configuration")
-    return found
+    return finished_cases(out, "cases/case_*/case.json")
 
 
 def summary(recs: list[dict]) -> dict:
@@ -255,13 +252,8 @@ def plot_e_rel(path, recs: list[dict], summ: dict) -> Path:
 
 def write(out, *, wall_seconds: float | None = None) -> dict:
     """design.json, design.md and e_rel.png from every finished case under ``out``."""
-    out = Path(out)
     recs = records(out)
-    if not recs:
-        raise ValueError(f"{out}: no finished cases")
     summ = summary(recs)
-    result = {"config": recs[0]["config"], "summary": summ, "wall_seconds": wall_seconds, "cases": recs}
-    write_json(out / "design.json", result)
-    (out / "design.md").write_text(table_markdown(recs, summ))
-    plot_e_rel(out / "e_rel.png", recs, summ)
-    return result
+    plot_e_rel(Path(out) / "e_rel.png", recs, summ)
+    return write_study(out, "design", {"config": recs[0]["config"], "summary": summ, "wall_seconds": wall_seconds,
+                                       "cases": recs}, table_markdown(recs, summ))
