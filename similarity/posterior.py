@@ -2,7 +2,9 @@
 
 * Prior: uniform on the paper's material space, i.e. on [0, 1]^3 in normalised coordinates
   (:mod:`similarity.space`), restricted to the emulator's trust region (the box its training
-  simulations span); outside it the emulator extrapolates and the posterior is cut (reported).
+  simulations span).  The box starts at estimate +- ``half_width`` and doubles, with a new batch of
+  simulations each time, while more than ``MAX_CUT`` of the posterior lies in its outer ``EDGE`` next
+  to a face inside the material space (:func:`cut_fraction`), up to the whole space.
 * Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
   simulations already in the store near the estimate (the CMA-ES archive) plus a scrambled-Sobol
@@ -292,7 +294,8 @@ class Analysis:
 
 def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, half_width: float = 0.1,
             seed: int = 0, nwalkers: int = 32, min_ess: float = 1000.0, max_steps: int = 20000,
-            discretisation: bool = True, noise_count: str = NOISE_COUNT, progress: Callable[[dict], None] | None = None) -> Analysis:
+            discretisation: bool = True, noise_count: str = NOISE_COUNT,
+            progress: Callable[[dict], None] | None = None) -> Analysis:
     """Noise scale, emulator, posterior, ellipsoids and ranked next setups of a run; writes
     ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder."""
     from mpm.store import digest
