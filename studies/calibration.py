@@ -36,10 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
-from mpm.files import read_json
 from similarity.posterior import NOISE_COUNT
 from similarity.space import Material, Setup, denormalize, e_rel, normalize
-from studies.report import finished_cases, save_figure, write_json, write_study
+from studies.report import finished_case, finished_cases, save_figure, write_json, write_study
 
 SETTINGS = ("same", "finer")
 LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliability curve
@@ -138,10 +137,8 @@ def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *,
 
     folder = Path(folder)
     done = folder / "case.json"
-    if done.is_file():
-        rec = read_json(done)
-        if rec.get("config") != config:
-            raise ValueError(f"{done} was made with other settings ({rec.get('config')}); use another --out")
+    rec = finished_case(folder, config)
+    if rec is not None:
         return rec
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -29,11 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
-from mpm.files import read_json
 from similarity.proposers import CRITERIA, Eig, Perpendicularity, Random
 from similarity.space import e_rel
 from studies.emulation import GOOD
-from studies.report import finished_cases, save_figure, write_json, write_study
+from studies.report import finished_case, finished_cases, save_figure, write_json, write_study
 
 DENSITY = 1000.0  # kg/m^3
 PAIRS = (("eig", "perpendicularity"), ("perpendicularity", "random"), ("eig", "random"))
@@ -87,10 +86,8 @@ def run_case(folder, index: int, truth, first, *, config: dict, store, executor,
 
     folder = Path(folder)
     done = folder / "case.json"
-    if done.is_file():
-        rec = read_json(done)
-        if rec.get("config") != config:
-            raise ValueError(f"{done} was made with other settings ({rec.get('config')}); use another --out")
+    rec = finished_case(folder, config)
+    if rec is not None:
         return rec
     t0 = time.perf_counter()
     sim = config["simulator"]

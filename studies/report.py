@@ -57,6 +57,22 @@ def finished_cases(out, *patterns: str) -> list[dict]:
     return found
 
 
+def finished_case(folder, config: dict) -> dict | None:
+    """The record ``folder/case.json`` of a finished case made with ``config``; None when there is none.
+
+    ValueError when it was made with another configuration.
+    """
+    from mpm.files import read_json
+
+    done = Path(folder) / "case.json"
+    if not done.is_file():
+        return None
+    rec = read_json(done)
+    if rec.get("config") != config:
+        raise ValueError(f"{done} was made with other settings ({rec.get('config')}); use another --out")
+    return rec
+
+
 def write_study(out, stem: str, result: dict, markdown: str) -> dict:
     """``OUT/STEM.json`` (the result) and ``OUT/STEM.md`` (its tables) of a study."""
     write_json(Path(out) / f"{stem}.json", result)
