@@ -327,9 +327,11 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
     widths = [min(half_width * 2.0**k, 1.0) for k in range(MAX_EXPANSIONS + 1)]
     batches = [space_filling(x_hat, w, new_simulations, seed=seed + k) if new_simulations else np.zeros((0, 3))
                for k, w in enumerate(widths)]
+    stored = archive(run, x_hat, 1.0)  # one pass over the store; each box takes its part
     for attempt, half_width in enumerate(widths):
         X_new = batches[attempt]
-        X_old = np.vstack([archive(run, x_hat, half_width), x_hat[None]])
+        in_box = np.all(np.abs(stored - x_hat) <= half_width + 1e-12, axis=1)
+        X_old = np.vstack([stored[in_box], x_hat[None]])
         # a re-run finds every batch of new simulations in the store: those are not archive, so the training
         # set (and the backend) stay the same
         known = np.vstack([*batches, X_all])
