@@ -21,7 +21,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from similarity.likelihood import NoiseScale  # noqa: E402
-from similarity.posterior import sample  # noqa: E402
+from similarity.mcmc import sample  # noqa: E402
 from surrogate.emulator import LossEmulator, space_filling  # noqa: E402
 
 

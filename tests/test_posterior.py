@@ -11,7 +11,7 @@ import pytest
 from similarity.design import expected_information_gain, rank_setups
 from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
 from similarity.likelihood import correlation_area, noise_scale
-from similarity.posterior import gaussian_moments_check, sample
+from similarity.mcmc import gaussian_moments_check, sample
 from similarity.space import Setup
 from surrogate.emulator import LossEmulator, space_filling
 
@@ -168,7 +168,7 @@ _KILLED = textwrap.dedent("""
     import os, signal, sys
     import numpy as np
     sys.path.insert(0, {root!r})
-    from similarity.posterior import sample
+    from similarity.mcmc import sample
     calls = [0]
     def log_prob(x):
         calls[0] += 1
