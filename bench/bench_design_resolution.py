@@ -43,9 +43,16 @@ def main() -> None:
     ap.add_argument("--criteria", default="perpendicularity,random")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
-    recs = records(args.study)
-    if not recs:
-        sys.exit(f"{args.study}: no finished case of a design study")
+    try:
+        recs = records(args.study)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)
+    unknown = set(args.criteria.split(",")) - set(recs[0]["config"]["criteria"])
+    if unknown:
+        print(f"error: --criteria {', '.join(sorted(unknown))}: not in the study "
+              f"({', '.join(recs[0]['config']['criteria'])})", file=sys.stderr)
+        sys.exit(2)
     coarse = get_preset(recs[0]["config"]["preset"])
     fine = dataclasses.replace(coarse, cell_mm=args.cell_mm)
     store, executor = Store(args.store), batch.local_executor(args.workers)
