@@ -9,6 +9,7 @@ setup-2 footage at the experimenters' setup-1 estimate (the reference implementa
     python bench/bench_forward.py                 # everything but the 70 x 70 mm run at 1.26 mm
     python bench/bench_forward.py --paper-70      # also that one (~900k particles, tens of minutes)
     python bench/bench_forward.py --experiments 4 # convergence on the first 4 (small) shared experiments only
+    python bench/bench_forward.py --skip-timing --skip-loss --min-area-mm2 1000 --max-area-mm2 5000  # the large ones
     python bench/bench_forward.py --skip-timing --skip-convergence   # just the Worcestershire loss
 """
 import argparse
@@ -67,7 +68,7 @@ def _table1():
                             sigma_y=float(r["paper_sigma_y_Pa"])) for r in manifest()}
 
 
-def convergence(count: int | None, max_area: float) -> None:
+def convergence(count: int | None, max_area: float, min_area: float = 0.0) -> None:
     from mpm.experiment import iter_shared, load as load_experiment
     from mpm.loss import iou
 
@@ -76,7 +77,7 @@ def convergence(count: int | None, max_area: float) -> None:
     for p in iter_shared():
         if p.name in table:
             e = load_experiment(p, frames=False)
-            if e.width_mm * e.height_mm <= max_area:
+            if min_area < e.width_mm * e.height_mm <= max_area:
                 folders.append(p)
     folders = folders[:count]
     fine = solver.DEFAULT_CELL_MM / 2
@@ -123,7 +124,9 @@ def main(argv=None) -> None:
     ap.add_argument("--paper-70", action="store_true", help="also time 70 x 70 mm at 1.26 mm cells (slow)")
     ap.add_argument("--experiments", default="all", help="number of shared experiments for the IoU study, or all")
     ap.add_argument("--max-area-mm2", type=float, default=1000.0,
-                    help="IoU study only on setups with W*H below this (the 2x finer run costs 16x)")
+                    help="IoU study only on setups with W*H up to this (the 2x finer run costs 16x)")
+    ap.add_argument("--min-area-mm2", type=float, default=0.0,
+                    help="IoU study only on setups with W*H above this (with --max-area-mm2: split the study)")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--skip-convergence", action="store_true")
     ap.add_argument("--skip-loss", action="store_true")
@@ -132,7 +135,7 @@ def main(argv=None) -> None:
     if not a.skip_timing:
         timing(a.paper_70)
     if not a.skip_convergence:
-        convergence(None if a.experiments == "all" else int(a.experiments), a.max_area_mm2)
+        convergence(None if a.experiments == "all" else int(a.experiments), a.max_area_mm2, a.min_area_mm2)
     if not a.skip_loss:
         worcestershire()
     print(f"# total {time.time() - t0:.0f} s")
