@@ -106,6 +106,16 @@ def test_numbers_are_checked_with_the_projects_messages(capsys, tmp_path, argv, 
     assert not (tmp_path / "d").exists()
 
 
+@pytest.mark.parametrize("command", [["demo"], ["estimate", "folder"], ["study", "emulation"], ["study", "landscapes"],
+                                     ["study", "calibration"], ["report", "run"], ["theta", "fit", "study"]])
+def test_a_seed_out_of_range_is_refused_before_any_work(capsys, tmp_path, command):
+    with pytest.raises(SystemExit) as exc:
+        main([*command, "--seed", "-1", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.strip().endswith("error: argument --seed: -1 is not in 0..2**32-1")
+    assert not (tmp_path / "o").exists()
+
+
 def test_a_word_where_a_number_belongs(capsys, tmp_path):
     with pytest.raises(SystemExit) as exc:
         main(["demo", "--out", str(tmp_path / "d"), "--density", "heavy"])

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 from studies.commands.context import (add_posterior_options, add_preset_option, add_run_options, check_posterior_options,
-                                      check_run_options, integer, open_run)
+                                      check_run_options, integer, open_run, seed)
 
 
 def register(study_subparsers) -> None:
@@ -19,7 +19,7 @@ def register(study_subparsers) -> None:
     p.add_argument("--setting", choices=("same", "finer", "both"), default="both",
                    help="footage by the estimating model, at half its cell width, or both (default both)")
     add_posterior_options(p)
-    p.add_argument("--seed", type=integer, default=0, help="seed of the design, CMA-ES and emcee (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the design, CMA-ES and emcee (default 0)")
     add_preset_option(p, default="demo")
     add_run_options(p, default_out="./virheo-calibration")
     p.set_defaults(func=run)
@@ -28,8 +28,6 @@ def register(study_subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from studies import calibration as C
 
-    if args.cases < 1:
-        raise ValueError(f"--cases {args.cases} must be >= 1")
     check_posterior_options(args)
     check_run_options(args)
     settings = C.SETTINGS if args.setting == "both" else (args.setting,)

@@ -64,6 +64,14 @@ def integer(text: str) -> int:
         raise argparse.ArgumentTypeError(f"'{text}' is not a whole number") from None
 
 
+def seed(text: str) -> int:
+    """argparse ``type`` for a random seed: a whole number in 0..2**32-1 (what numpy, CMA-ES and emcee take)."""
+    value = integer(text)
+    if not 0 <= value < 2**32:
+        raise argparse.ArgumentTypeError(f"{value} is not in 0..2**32-1")
+    return value
+
+
 PRESET_NAMES = Names("similarity.estimate:PRESETS")
 
 
@@ -102,10 +110,10 @@ def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None, gene
 
 
 def add_posterior_options(p: argparse.ArgumentParser) -> None:
+    """The options of the posterior of ``similarity.posterior.analyse`` (``virheo report``, ``study calibration``)."""
     from similarity.likelihood import METHODS
     from similarity.posterior import NOISE_COUNT
 
-    """The options of the posterior of ``similarity.posterior.analyse`` (``virheo report``, ``study calibration``)."""
     p.add_argument("--new-simulations", type=integer, default=24, metavar="N",
                    help="space-filling candidates simulated for the emulator, each in every setup (default 24)")
     p.add_argument("--half-width", type=real, default=0.1, metavar="W",
@@ -127,6 +135,8 @@ def check_run_options(args) -> None:
     """The project's own messages for out-of-range numbers and paths of the wrong kind."""
     if getattr(args, "generations", None) is not None and args.generations < 1:
         raise ValueError(f"--generations {args.generations} must be >= 1")
+    if getattr(args, "cases", 1) < 1:
+        raise ValueError(f"--cases {args.cases} must be >= 1")
     if args.workers is not None and args.workers < 0:
         raise ValueError(f"--workers {args.workers} must be >= 0 (0: simulate in this process)")
     if args.workers is not None and args.scheduler:

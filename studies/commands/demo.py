@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real
+from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real, seed
 
 # The embedded default specimen (SI) and its first setup (mm); see docs/performance.md (estimate).
 DEFAULT_TRUTH = "3.0,0.5,15.0"
@@ -23,7 +23,7 @@ def register(subparsers) -> None:
                    help=f"first setup, width x height in mm (default {DEFAULT_FIRST_SETUP})")
     p.add_argument("--density", type=real, default=1000.0, metavar="KG_M3",
                    help="density of the material in kg/m^3 (default 1000)")
-    p.add_argument("--seed", type=integer, default=DEFAULT_SEED, help=f"CMA-ES seed (default {DEFAULT_SEED})")
+    p.add_argument("--seed", type=seed, default=DEFAULT_SEED, help=f"CMA-ES seed (default {DEFAULT_SEED})")
     add_preset_option(p, default="demo")
     add_run_options(p, default_out="./virheo-demo")
     p.set_defaults(func=run)

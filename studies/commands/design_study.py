@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run
+from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, seed
 
 
 def register(study_subparsers) -> None:
@@ -16,7 +16,7 @@ def register(study_subparsers) -> None:
         "design.json, design.md and e_rel.png. Resumes from its store and its finished cases.")
     p.add_argument("--cases", type=integer, default=20, metavar="N",
                    help="materials (one first setup each; default 20)")
-    p.add_argument("--seed", type=integer, default=0, help="seed of the design, setups and CMA-ES (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the design, setups and CMA-ES (default 0)")
     add_preset_option(p, default="demo")
     add_run_options(p, default_out="./virheo-design")
     p.set_defaults(func=run)
@@ -25,10 +25,6 @@ def register(study_subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from studies import design_study as D
 
-    if args.cases < 1:
-        raise ValueError(f"--cases {args.cases} must be >= 1")
-    if args.seed < 0:
-        raise ValueError(f"--seed {args.seed} must be >= 0")
     check_run_options(args)
     with open_run(args) as run:
         stored = run.store.count()

@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run
+from studies.commands.context import add_preset_option, add_run_options, check_run_options, open_run, seed
 
 
 def register(subparsers) -> None:
@@ -18,7 +18,7 @@ def register(subparsers) -> None:
     p.add_argument("dirs", nargs="+", metavar="DIR",
                    help="experiment folders (settings.xml, camera_params.xml, config_01..08.png)")
     add_preset_option(p, default="footage")
-    p.add_argument("--seed", type=integer, default=0, help="CMA-ES seed (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="CMA-ES seed (default 0)")
     add_run_options(p, default_out=None)
     p.set_defaults(func=run)
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real
+from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real, seed
 
 
 def _common(p, default_out: str) -> None:
@@ -40,7 +40,7 @@ def register(study_subparsers) -> None:
     p.add_argument("--half-width", type=real, default=0.05, metavar="A",
                    help="half-width of the landscape block, normalised (default 0.05)")
     p.add_argument("--plots", type=integer, default=3, metavar="N", help="Fig. 6-style PNGs of the first N pairs (default 3)")
-    p.add_argument("--seed", type=integer, default=0, help="seed of the materials and setups (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the materials and setups (default 0)")
     p.add_argument("--region", type=region, default=None, metavar="ETA_LO:ETA_HI,N_LO:N_HI,SY_LO:SY_HI",
                    help="draw the materials from this box only (SI: Pa s^n, -, Pa), e.g. 0:8,0.3:1,0:20 for thin, "
                    "weakly yielding materials (default: the whole material space)")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from studies.commands.context import add_posterior_options, check_posterior_options
+from studies.commands.context import add_posterior_options, check_posterior_options, seed
 
 
 def register(subparsers) -> None:
@@ -20,7 +20,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", default=None, metavar="DIR", help="report folder (default RUN/report)")
     p.add_argument("--store", default=None, metavar="PATH", help="simulation store (default RUN/store)")
     add_posterior_options(p)
-    p.add_argument("--seed", type=int, default=0, help="seed of the space-filling batch and of emcee (default 0)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the space-filling batch and of emcee (default 0)")
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
     p.add_argument("--no-discretisation", action="store_true",
                    help="skip the half-cell simulation of the estimate that measures the discretisation error")

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 
 from studies.commands.context import (add_command_group, add_preset_option, add_run_options, check_run_options,
-                                      integer, open_run)
+                                      integer, open_run, seed)
 
 
 def register(subparsers) -> None:
@@ -18,7 +18,7 @@ def register(subparsers) -> None:
     e.add_argument("--runs", type=integer, default=3, metavar="R",
                    help="runs per material from random first setups (default 3)")
     add_preset_option(e, default="demo")
-    e.add_argument("--seed", type=integer, default=0, help="seed of the materials, setups and CMA-ES (default 0)")
+    e.add_argument("--seed", type=seed, default=0, help="seed of the materials, setups and CMA-ES (default 0)")
     add_run_options(e, default_out="./virheo-emulation")
     e.set_defaults(func=run_emulation)
     from studies.commands import calibration, design_study, landscapes

@@ -5,7 +5,7 @@ import argparse
 import json
 from pathlib import Path
 
-from studies.commands.context import add_command_group
+from studies.commands.context import add_command_group, seed
 
 
 def register(subparsers) -> None:
@@ -22,7 +22,7 @@ def register(subparsers) -> None:
     f.add_argument("--out", required=True, metavar="theta.json", help="where to write the fitted map")
     f.add_argument("--test-fraction", type=float, default=0.3, metavar="F",
                    help="fraction of the study's materials held out of the fit (default 0.3)")
-    f.add_argument("--seed", type=int, default=0, help="seed of the held-out split")
+    f.add_argument("--seed", type=seed, default=0, help="seed of the held-out split")
     f.add_argument("--name", default="fitted", help="name stored in the map")
     f.add_argument("--prior", default=None, metavar="MAP",
                    help="fit a correction to this map ('reference', 'fitted' or a JSON file) instead of a map of "
