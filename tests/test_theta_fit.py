@@ -64,9 +64,34 @@ def test_regularisation_is_chosen_by_leaving_materials_out():
     assert F.fit(x, noise, groups, domain=input_domain())[1]["alpha"] >= 100
     ref = load("reference")
     c = ref.wall_stress(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3)
-    assert F.fit(x, c, groups, domain=input_domain())[1]["alpha"] < 1.0
+    assert F.fit(x, c, groups, domain=input_domain(), max_invalid=1.0)[1]["alpha"] < 1.0
     with pytest.raises(ValueError, match="3 materials"):
         F.fit(x[:6], c[:6], groups[:6], domain=input_domain())
+
+
+def test_regularisation_keeps_the_map_valid_over_the_input_domain():
+    """Landscapes only sample materials with eta >= 2 Pa s^n and sigma_y >= 3 Pa; the weakest regularisation
+    that cross-validates best there leaves the C extent (5..500 Pa) on more of the domain than the published
+    map does. The chosen map stays inside it on all but MAX_INVALID of an independent domain sample."""
+    rng = np.random.default_rng(0)
+    k = 90
+    x = np.column_stack([rng.uniform(2, 30, k), rng.uniform(0.3, 1, k), rng.uniform(3, 40, k),
+                         rng.uniform(0.02, 0.07, k), rng.uniform(0.02, 0.07, k)])
+    ref = load("reference")
+    c = ref.wall_stress(x[:, 0], x[:, 1], x[:, 2], x[:, 4] * 1e3, x[:, 3] * 1e3) + rng.normal(0, 1, k)
+    groups = np.repeat(np.arange(30), 3)
+    xd = F.domain_sample(input_domain(), seed=7)
+
+    def invalid(pipe):
+        wall = F.to_theta_map(pipe).wall_stress(xd[:, 0], xd[:, 1], xd[:, 2], xd[:, 4] * 1e3, xd[:, 3] * 1e3)
+        return np.mean((wall < 5) | (wall > 500))
+
+    free, free_summary = F.fit(x, c, groups, domain=input_domain(), max_invalid=1.0)
+    kept, summary = F.fit(x, c, groups, domain=input_domain())
+    assert invalid(free) > 2 * F.MAX_INVALID
+    assert invalid(kept) <= 1.5 * F.MAX_INVALID and summary["invalid_domain_fraction"] <= F.MAX_INVALID
+    assert summary["alpha"] > free_summary["alpha"] == summary["alpha_unconstrained"]
+    assert summary["cv_rms_C_Pa"] >= free_summary["cv_rms_C_Pa"]
 
 
 def test_fit_with_a_prior_shrinks_towards_it():

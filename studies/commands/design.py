@@ -22,8 +22,9 @@ def register(subparsers) -> None:
                    "(must lie in the material space: eta 1e-4..30, n 0.3..1, sigma_y 0..40)")
     p.add_argument("--done", default=None, action="append", metavar="WxH",
                    help="a setup already run, width x height in mm (20..70), e.g. 29x59; repeat for several")
-    p.add_argument("--theta", default="reference", metavar="reference|PATH",
-                   help="Theta map: 'reference' (the authors' published map, default) or a JSON file saved by ThetaMap.save")
+    p.add_argument("--theta", default="reference", metavar="reference|fitted|PATH",
+                   help="Theta map: 'reference' (the authors' published map, default), 'fitted' (ours, fitted to MPM "
+                   "loss landscapes) or a JSON file saved by ThetaMap.save or 'virheo theta fit'")
     p.add_argument("--plot", default=None, metavar="FILE.png",
                    help="write a heat map of S_p over the (W, H) grid in mm with the done and chosen setups marked "
                    "(.png is added to a name without a suffix)")
