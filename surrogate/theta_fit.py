@@ -220,9 +220,14 @@ def fit(x, c_pa, groups=None, *, domain, sigma_eps: float = 1e-4, c_extent_pa=(5
                    for a in alphas])
     xd = domain_sample(domain, seed=1)  # not the scaler's own sample
     zd = pipe[:3].transform(xd)
-    base = 0.0 if prior is None else prior.rate(xd[:, 0], xd[:, 1], xd[:, 2], xd[:, 4] * 1e3, xd[:, 3] * 1e3)
-    invalid = np.array([np.mean(np.abs(Ridge(alpha=a).fit(z, y).predict(zd) + base - 0.5) > 0.5) for a in alphas])
-    limit = max_invalid + float(np.mean(np.abs(base - 0.5) > 0.5))  # a prior's own misses are not the fit's
+    base = np.zeros(len(xd)) if prior is None else prior.rate(xd[:, 0], xd[:, 1], xd[:, 2], xd[:, 4] * 1e3,
+                                                              xd[:, 3] * 1e3)
+
+    def outside(rate) -> float:  # fraction of the domain sample whose C leaves c_extent_pa (rate outside [0, 1])
+        return float(np.mean((rate < 0) | (rate > 1)))
+
+    invalid = np.array([outside(Ridge(alpha=a).fit(z, y).predict(zd) + base) for a in alphas])
+    limit = max_invalid + outside(base)  # a prior's own misses are not the fit's
     allowed = invalid <= limit
     if not allowed.any():
         raise ValueError(f"no regularisation keeps the map's C inside {c_extent_pa} Pa on all but {limit:.2%} "
