@@ -1,7 +1,7 @@
 """How does the matched wall stress C = P L of shallow boxes (H = 20 mm) change with the box's width, and with the
 cell width of the forward model?
 
-For each material, three setups W x 20 mm are emulated at each cell width; the MPM loss landscape (eq. 3) on the
+For each material, setups W x 20 mm (``--widths``) are emulated at each cell width; the MPM loss landscape (eq. 3) on the
 3^3 block of half-width 0.05 around the material is matched to the plane-Poiseuille loss normals (eq. 43), as in
 `virheo study landscapes`, and the best C is printed per width. The published Theta map's C along this edge has a
 shallow minimum at W = 25-32 mm, which sets the second setups of `first_estimates.csv`; this script shows what our
@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from mpm import batch  # noqa: E402
 from mpm.store import Store  # noqa: E402
 from similarity.emulation import emulate  # noqa: E402
-from similarity.presets import Discretisation, Preset, simulation_request  # noqa: E402
+from similarity.presets import Preset, simulation_request  # noqa: E402
 from similarity.space import Material, Setup, denormalize, normalize  # noqa: E402
 from studies.landscapes import grid_offsets, match  # noqa: E402
 from surrogate.theta import load as load_theta  # noqa: E402
@@ -58,11 +58,10 @@ def main(argv=None) -> int:
             print(f"{name} {mat}: published map {' / '.join(f'{c:5.1f}' for c in ref_c)}")
             for cell in a.cells:
                 t0 = time.perf_counter()
-                model = Discretisation(cell, 1)
                 preset = Preset("bench", generations=1, cell_mm=cell, ppc=1)
                 shots = emulate(m, setups, density=1000.0, preset=preset, store=store, executor=ex)
                 u0 = normalize(m.as_array())
-                jobs = [(simulation_request(Material.from_array(denormalize(u0 + du)), shot, model),
+                jobs = [(simulation_request(Material.from_array(denormalize(u0 + du)), shot, preset),
                          batch.experiment_id(shot.frames, shot.name), shot.frames) for shot in shots for du in block]
                 losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(setups), -1)
                 cs = [match(m, row, GRID, HALF_WIDTH)["C_Pa"] for row in losses]
