@@ -1,10 +1,11 @@
 """Posterior over (eta, n, sigma_y) given dam-break footage: emcee on an emulated likelihood.
 
 * Prior: uniform on the paper's material space, i.e. on [0, 1]^3 in normalised coordinates
-  (:mod:`similarity.space`), restricted to the emulator's trust region (the box its training
-  simulations span).  The box starts at estimate +- ``half_width`` and doubles, with a new batch of
-  simulations each time, while more than ``MAX_CUT`` of the posterior lies in its outer ``EDGE`` next
-  to a face inside the material space (:func:`cut_fraction`), up to the whole space.
+  (:mod:`similarity.space`), restricted to the emulator's trust region: the box estimate +- ``half_width``
+  clipped to the material space, where its training simulations lie.  The box doubles, with a new batch
+  of simulations each time, while more than ``MAX_CUT`` of the posterior lies in its outer ``EDGE`` next
+  to a face inside the material space (:func:`cut_fraction`), up to the whole space.  A face on the
+  material space's own boundary is where the prior ends, so a posterior resting there is not cut.
 * Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
   simulations already in the store near the estimate (the CMA-ES archive) plus a scrambled-Sobol
@@ -152,7 +153,7 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
     from similarity.estimate import simulated_frames
     from similarity.likelihood import noise_scale
     from similarity.normals import loss_normal
-    from surrogate.emulator import LossEmulator, space_filling
+    from surrogate.emulator import LossEmulator, box, space_filling
 
     def say(text):
         if progress:
@@ -197,7 +198,7 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
         noise = base_noise.with_emulator(validation.rmse)
         say(f"emulator held-out RMSE {validation.rmse:.2e} (loss range {validation.loss_range:.2e}); "
             f"noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}")
-        lo, hi = np.maximum(emu.lower, 0.0), np.minimum(emu.upper, 1.0)
+        lo, hi = box(x_hat, half_width)
         log_prob = _log_posterior(noise, emu, lo, hi)
         key = digest({"X": X.round(12).tolist(), "y": y.tolist(), "noise": noise.to_dict(), "seed": seed,
                       "nwalkers": nwalkers})[:16]

@@ -29,12 +29,17 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import PolynomialFeatures
 
 
-def space_filling(center, half_width, n: int, seed: int = 0, lower=0.0, upper=1.0) -> np.ndarray:
-    """``n`` scrambled-Sobol points in the box ``center +- half_width`` clipped to [lower, upper]^d."""
+def box(center, half_width, lower=0.0, upper=1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (lo, hi) of the box ``center +- half_width`` clipped to [lower, upper]^d."""
     center = np.asarray(center, float)
     half = np.broadcast_to(np.asarray(half_width, float), center.shape)
-    lo = np.clip(center - half, lower, upper)
-    hi = np.clip(center + half, lower, upper)
+    return np.clip(center - half, lower, upper), np.clip(center + half, lower, upper)
+
+
+def space_filling(center, half_width, n: int, seed: int = 0, lower=0.0, upper=1.0) -> np.ndarray:
+    """``n`` scrambled-Sobol points in :func:`box` ``(center, half_width, lower, upper)``."""
+    center = np.asarray(center, float)
+    lo, hi = box(center, half_width, lower, upper)
     if np.any(hi <= lo):
         raise ValueError("space_filling: the box around the centre is empty")
     with warnings.catch_warnings():

@@ -60,6 +60,11 @@ def test_posterior_summary_is_coherent(reported):
     # the emulator's box grew until the posterior no longer leans on an inner face (or covers the space)
     from similarity.posterior import MAX_CUT
     assert s["emulator"]["cut_fraction"] <= MAX_CUT or s["emulator"]["half_width"] == 1.0
+    # its trust region is the nominal box, clipped to the material space (a face there never counts as cut)
+    from surrogate.emulator import box
+    lo, hi = box(s["estimate_normalised"], s["emulator"]["half_width"])
+    assert np.allclose(s["emulator"]["trust_region"], [lo, hi])
+    assert np.all(samples >= lo - 1e-12) and np.all(samples <= hi + 1e-12)
     lengths = s["ellipsoid_posterior"]["lengths"]
     assert lengths == sorted(lengths) and lengths[0] > 0
     assert s["next_setups_eig"] and s["next_setups_eig"][0]["eig_nats"] >= s["next_setups_eig"][-1]["eig_nats"]
