@@ -153,7 +153,7 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
     from similarity.estimate import simulated_frames
     from similarity.likelihood import noise_scale
     from similarity.normals import loss_normal
-    from surrogate.emulator import LossEmulator, box, space_filling
+    from surrogate.emulator import LossEmulator, box, min_training, space_filling
 
     def say(text):
         if progress:
@@ -191,8 +191,13 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
         X_all, y_all = np.vstack([X_all, X_add]), np.concatenate([y_all, y_add])
         ok = np.isfinite(y_all)
         X, y = X_all[ok], y_all[ok]
+        held_out = max(1, len(y) // 5)
+        if len(y) - held_out < min_training(3):
+            raise ValueError(f"{run.folder}: the emulator's box +-{half_width:g} holds {len(y)} simulated candidates "
+                             f"({len(X_old)} from the store made with this solver, {len(X_new)} new), too few to fit "
+                             f"it and hold a fifth out: raise --new-simulations")
         test = np.zeros(len(y), bool)
-        test[rng.choice(len(y), size=max(1, len(y) // 5), replace=False)] = True
+        test[rng.choice(len(y), size=held_out, replace=False)] = True
         emu = LossEmulator(seed=seed)
         validation = emu.validate(X[~test], y[~test], X[test], y[test])
         noise = base_noise.with_emulator(validation.rmse)

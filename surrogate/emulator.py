@@ -29,6 +29,11 @@ from sklearn.pipeline import make_pipeline
 from sklearn.preprocessing import PolynomialFeatures
 
 
+def min_training(d: int) -> int:
+    """Fewest training losses for the quadratic trend in ``d`` dimensions: its (d+1)(d+2)/2 terms, plus one."""
+    return (d + 1) * (d + 2) // 2 + 1
+
+
 def box(center, half_width, lower=0.0, upper=1.0) -> tuple[np.ndarray, np.ndarray]:
     """Corners (lo, hi) of the box ``center +- half_width`` clipped to [lower, upper]^d."""
     center = np.asarray(center, float)
@@ -78,9 +83,8 @@ class LossEmulator:
         X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
         ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
         X, y = X[ok], y[ok]
-        d = X.shape[1]
-        if len(y) < (d + 1) * (d + 2) // 2 + 1:
-            raise ValueError(f"the emulator needs at least {(d + 1) * (d + 2) // 2 + 1} finite losses, got {len(y)}")
+        if len(y) < min_training(X.shape[1]):
+            raise ValueError(f"the emulator needs at least {min_training(X.shape[1])} finite losses, got {len(y)}")
         self.trend = make_pipeline(PolynomialFeatures(2), Ridge(alpha=self.ridge)).fit(X, y)
         resid = y - self.trend.predict(X)
         scale = float(np.var(resid)) or 1e-12

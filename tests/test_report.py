@@ -90,6 +90,18 @@ def test_corrupt_backend_is_one_line_exit_2(reported, tmp_path, capsys):
     assert len(proc.stderr.strip().splitlines()) == 1
 
 
+def test_too_few_simulations_for_the_emulator_is_one_line_exit_2(reported, tmp_path):
+    """A box with too few stored candidates (e.g. a store made by another solver version) says what to raise."""
+    run, _ = reported
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    (copy / "posterior.h5").unlink()
+    proc = _cli("report", str(copy), "--workers", "0", "--new-simulations", "2", "--half-width", "0.001",
+                "--no-discretisation", "--quiet")
+    assert proc.returncode == 2 and "raise --new-simulations" in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+
+
 def test_run_without_estimate_and_bad_rheometer_file(tmp_path, capsys):
     empty = tmp_path / "run"
     empty.mkdir()
