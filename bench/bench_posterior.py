@@ -22,7 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from similarity.likelihood import NoiseScale  # noqa: E402
 from similarity.mcmc import sample  # noqa: E402
-from surrogate.emulator import LossEmulator, space_filling  # noqa: E402
+from similarity.posterior import box_log_posterior  # noqa: E402
+from surrogate.emulator import LossEmulator, box, space_filling  # noqa: E402
 
 
 def synthetic_loss(x, center, rng=None):
@@ -48,14 +49,7 @@ def main() -> None:
     v = emu.validate(X, synthetic_loss(X, center), Xt, synthetic_loss(Xt, center))
     t_emu = time.perf_counter() - t0
     noise = NoiseScale(8 * 2 * 518400, 40.0, 3e-3, 0.0, v.rmse, 16)
-    lo, hi = emu.lower, emu.upper
-
-    def log_prob(x):
-        inside = np.all((x >= lo) & (x <= hi), axis=1)
-        out = np.full(len(x), -np.inf)
-        if inside.any():
-            out[inside] = noise.log_likelihood(emu.predict(x[inside]))
-        return out
+    log_prob = box_log_posterior(noise, emu, *box(center, 0.1))
 
     c0, t0 = time.process_time(), time.perf_counter()
     post = sample(log_prob, center, nwalkers=args.walkers, seed=args.seed, min_ess=args.min_ess)

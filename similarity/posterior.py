@@ -114,7 +114,7 @@ def cut_fraction(samples, lo, hi) -> float:
     return float(np.mean(np.any(at_lo | at_hi, axis=1))) if len(samples) else 0.0
 
 
-def _log_posterior(noise, emu, lo, hi):
+def box_log_posterior(noise, emu, lo, hi):
     """Vectorised log-posterior in the normalised space: eq. (1) of the likelihood on the emulated loss,
     uniform prior cut to the box [lo, hi]."""
     def log_prob(x):
@@ -204,7 +204,7 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
         say(f"emulator held-out RMSE {validation.rmse:.2e} (loss range {validation.loss_range:.2e}); "
             f"noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}")
         lo, hi = box(x_hat, half_width)
-        log_prob = _log_posterior(noise, emu, lo, hi)
+        log_prob = box_log_posterior(noise, emu, lo, hi)
         key = digest({"X": X.round(12).tolist(), "y": y.tolist(), "noise": noise.to_dict(), "seed": seed,
                       "nwalkers": nwalkers})[:16]
         post = sample(log_prob, x_hat, nwalkers=nwalkers, seed=seed, min_ess=min_ess, max_steps=max_steps,

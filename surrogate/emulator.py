@@ -76,7 +76,6 @@ class LossEmulator:
         self.ridge = float(ridge)
         self.trend = None
         self.gp = None
-        self.lower = self.upper = None
         self.validation: Validation | None = None
 
     def fit(self, X, y) -> "LossEmulator":
@@ -96,7 +95,6 @@ class LossEmulator:
             warnings.simplefilter("ignore", ConvergenceWarning)  # a length scale at its bound is a fine answer
             self.gp = GaussianProcessRegressor(kernel, normalize_y=False, n_restarts_optimizer=2,
                                                random_state=self.seed).fit(X, resid)
-        self.lower, self.upper = X.min(axis=0), X.max(axis=0)
         self._poly, ridge = self.trend[0], self.trend[1]
         self._coef, self._intercept = ridge.coef_, ridge.intercept_
         self._X = self.gp.X_train_
@@ -130,8 +128,3 @@ class LossEmulator:
         self.fit(np.vstack([X_train, X_test]), np.concatenate([y_train, y_test]))
         self.validation = v
         return v
-
-    def within(self, X) -> np.ndarray:
-        """True where X lies inside the bounding box of the training inputs (the emulator's trust region)."""
-        X = np.atleast_2d(np.asarray(X, float))
-        return np.all((X >= self.lower) & (X <= self.upper), axis=1)
