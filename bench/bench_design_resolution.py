@@ -42,9 +42,10 @@ def main() -> None:
     ap.add_argument("--cell-mm", type=float, default=2.5, help="the finer cell width (default 2.5)")
     ap.add_argument("--criteria", default="perpendicularity,random")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--cases", type=int, default=None, metavar="N", help="the first N cases only (default all)")
     args = ap.parse_args()
     try:
-        recs = records(args.study)
+        recs = records(args.study)[:args.cases]
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(2)
