@@ -44,6 +44,8 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--cases", type=int, default=None, metavar="N", help="the first N cases only (default all)")
     args = ap.parse_args()
+    if args.cases is not None and args.cases < 1:
+        ap.error(f"--cases {args.cases}: must be >= 1")
     try:
         recs = records(args.study)[:args.cases]
     except ValueError as exc:
