@@ -7,7 +7,8 @@ For each material, setups W x 20 mm (``--widths``) are emulated at each cell wid
 shallow minimum at W = 25-32 mm, which sets the second setups of `first_estimates.csv`; this script shows what our
 simulator's landscapes say there.
 
-    python bench/bench_theta_width_trend.py [--cells 5,2.5] [--widths 20,45,70] [--store PATH] [--workers 2]
+    python bench/bench_theta_width_trend.py [--cells 5,2.5] [--widths 20,45,70] [--only pancake] [--store PATH]
+        [--workers 2]
 """
 from __future__ import annotations
 
@@ -43,6 +44,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", type=numbers, default=[5.0, 2.5], help="cell widths in mm (default 5,2.5)")
     ap.add_argument("--widths", type=numbers, default=[20.0, 45.0, 70.0], help="box widths in mm (default 20,45,70)")
+    ap.add_argument("--only", default="", help="only the materials whose name contains this text")
     ap.add_argument("--store", default="bench-theta-width-store", help="simulation store folder")
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args(argv)
@@ -53,6 +55,8 @@ def main(argv=None) -> int:
     print(f"matched C [Pa] at H = {HEIGHT_MM:g} mm, W = {' / '.join(f'{w:g}' for w in a.widths)} mm")
     try:
         for name, mat in MATERIALS.items():
+            if a.only not in name:
+                continue
             m = Material(*mat)
             ref_c = reference.wall_stress(*mat, np.array(a.widths), np.full(len(a.widths), HEIGHT_MM))
             print(f"{name} {mat}: published map {' / '.join(f'{c:5.1f}' for c in ref_c)}")
