@@ -7,8 +7,8 @@ For each material, setups W x 20 mm (``--widths``) are emulated at each cell wid
 shallow minimum at W = 25-32 mm, which sets the second setups of `first_estimates.csv`; this script shows what our
 simulator's landscapes say there.
 
-    python bench/bench_theta_width_trend.py [--cells 5,2.5] [--widths 20,45,70] [--only pancake] [--store PATH]
-        [--workers 2]
+    python bench/bench_theta_width_trend.py [--cells 5,2.5] [--ppc 1] [--widths 20,45,70] [--only pancake]
+        [--store PATH] [--workers 2]
 """
 from __future__ import annotations
 
@@ -44,6 +44,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", type=numbers, default=[5.0, 2.5], help="cell widths in mm (default 5,2.5)")
     ap.add_argument("--widths", type=numbers, default=[20.0, 45.0, 70.0], help="box widths in mm (default 20,45,70)")
+    ap.add_argument("--ppc", type=int, default=1, help="particles per cell per axis (default 1; the paper's: 2)")
     ap.add_argument("--only", default="", help="only the materials whose name contains this text")
     ap.add_argument("--store", default="bench-theta-width-store", help="simulation store folder")
     ap.add_argument("--workers", type=int, default=2)
@@ -62,14 +63,14 @@ def main(argv=None) -> int:
             print(f"{name} {mat}: published map {' / '.join(f'{c:5.1f}' for c in ref_c)}")
             for cell in a.cells:
                 t0 = time.perf_counter()
-                preset = Preset("bench", generations=1, cell_mm=cell, ppc=1)
+                preset = Preset("bench", generations=1, cell_mm=cell, ppc=a.ppc)
                 shots = emulate(m, setups, density=1000.0, preset=preset, store=store, executor=ex)
                 u0 = normalize(m.as_array())
                 jobs = [(simulation_request(Material.from_array(denormalize(u0 + du)), shot, preset),
                          batch.experiment_id(shot.frames, shot.name), shot.frames) for shot in shots for du in block]
                 losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(setups), -1)
                 cs = [match(m, row, GRID, HALF_WIDTH)["C_Pa"] for row in losses]
-                print(f"  MPM, {cell:g} mm cells: {' / '.join(f'{c:5.1f}' for c in cs)}"
+                print(f"  MPM, {cell:g} mm cells, {a.ppc} per axis: {' / '.join(f'{c:5.1f}' for c in cs)}"
                       f"   ({time.perf_counter() - t0:.0f} s)", flush=True)
     finally:
         batch.shutdown(ex)
