@@ -53,6 +53,8 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     fine = 41
     axis = np.linspace(-hw, hw, fine)
     mid = grid // 2
+    from matplotlib.colors import PowerNorm
+
     for col, rec in enumerate(pairs):
         m = Material(**rec["material"])
         q_pp = np.asarray(rec["match"]["q_pp"], dtype=float)
@@ -62,12 +64,13 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
         sl = [slice(None)] * 3
         sl[c] = mid
         top = axes[0, col]
-        top.imshow(cube[tuple(sl)].T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis", interpolation="nearest")
+        top.imshow(cube[tuple(sl)].T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis", interpolation="nearest",
+                   norm=PowerNorm(0.25, vmin=0.0))
         pts = np.zeros((fine, fine, 3))
         pts[..., a], pts[..., b] = np.meshgrid(axis, axis, indexing="ij")
         pp = LS.poiseuille_landscape(m, pts.reshape(-1, 3), rec["match"]["C_Pa"]).reshape(fine, fine)
         bottom = axes[1, col]
-        bottom.imshow(pp.T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis")
+        bottom.imshow(pp.T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis", norm=PowerNorm(0.25, vmin=0.0))
         for ax in (top, bottom):
             if q_fd is not None:
                 trace(ax, q_fd, a, b, hw, "w", "plane normal to FD loss normal")
@@ -83,7 +86,8 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
         bottom.set_title(f"Poiseuille, C = {rec['match']['C_Pa']:.3g} Pa"
                          + (f"\nnormals {angle:.1f} deg apart" if angle is not None else ""), fontsize=8)
     axes[0, 0].legend(fontsize=6, loc="lower left", framealpha=0.7)
-    fig.suptitle("Fig. 6: MPM loss (top), matched plane-Poiseuille loss (bottom)", fontsize=9)
+    fig.suptitle("Fig. 6: MPM loss (top), matched plane-Poiseuille loss (bottom); colour: loss to the power 1/4",
+                 fontsize=9)
     fig.tight_layout()
     from studies.report import save_figure
 
