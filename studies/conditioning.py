@@ -14,6 +14,24 @@ from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, norma
 from studies.report import save_figure, write_json
 
 
+# setups whose footage is held in memory at once (8 frames of 960 x 540 each, about 4 MB per setup): the
+# paper's 51 x 51 grid would otherwise need over 10 GB
+CHUNK = 64
+
+
+def _stencil_losses(material, setups, probes, preset, store, executor, simulator, density, tick) -> np.ndarray:
+    """Losses (len(setups), len(probes)) of the FD stencil around ``material`` against its own footage."""
+    shots = E.emulate(material, setups, density=density, preset=preset, store=store, executor=executor,
+                      simulator=simulator)
+    u0 = normalize(material.as_array())
+    jobs = []
+    for e in shots:
+        eid = batch.experiment_id(e.frames, e.name)
+        jobs += [(E.simulation_request(Material.from_array(denormalize(u0 + du)), e, preset.final, simulator), eid,
+                  e.frames) for du in probes]
+    return batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
+
+
 def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", store,
                  executor=None, simulator: str = batch.DEFAULT_SIMULATOR, progress=None, density: float = 1000.0) -> dict:
     """Condition number of the FD Hessian of ``material``'s loss at each setup of a ``steps`` x ``steps``
@@ -31,17 +49,10 @@ def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.
     lo, hi = SETUP_RANGE_MM
     sizes = np.round(np.linspace(lo, hi, steps))
     setups = [Setup(float(w), float(h)) for h in sizes for w in sizes]
-    shots = E.emulate(material, setups, density=density, preset=preset, store=store, executor=executor,
-                      simulator=simulator)
     probes = stencil(fd_step)
-    u0 = normalize(material.as_array())
-    jobs = []
-    for e in shots:
-        eid = batch.experiment_id(e.frames, e.name)
-        for du in probes:
-            jobs.append((E.simulation_request(Material.from_array(denormalize(u0 + du)), e, preset.final, simulator), eid, e.frames))
     tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
-    losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
+    losses = np.concatenate([_stencil_losses(material, setups[k:k + CHUNK], probes, preset, store, executor,
+                                             simulator, density, tick) for k in range(0, len(setups), CHUNK)])
     cond = np.full(len(setups), np.nan)
     normals, eigen = [], []
     for k, row in enumerate(losses):
@@ -58,7 +69,7 @@ def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.
            "heights_mm": sizes.tolist(), "condition": grid.tolist(), "q_max": normals, "eigenvalues": eigen,
            "setups": [str(s) for s in setups], "face_losses": losses[:, :6].tolist(),
            "min": float(np.nanmin(cond)), "median": float(np.nanmedian(cond)), "max": float(np.nanmax(cond)),
-           "simulations": len(jobs) + len(setups), "wall_seconds": time.perf_counter() - t0}
+           "simulations": len(setups) * (len(probes) + 1), "wall_seconds": time.perf_counter() - t0}
     write_json(out / "conditioning.json", res)
     import matplotlib
 

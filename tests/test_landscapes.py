@@ -121,3 +121,28 @@ def test_bad_input_exits_2(tmp_path, capsys):
     (tmp_path / "notastudy" / LS.RESULT_FILE).write_text(json.dumps({"format": "something else"}))
     err = _one_line_exit_2(capsys, ["theta", "fit", str(tmp_path / "notastudy"), "--out", str(tmp_path / "t.json")])
     assert "not a landscape study" in err
+
+
+def test_conditioning_holds_one_chunk_of_footage_at_a_time(tmp_path, monkeypatch):
+    # the paper's 51 x 51 setup grid is 2601 footages of ~4 MB: the study emulates them a chunk at a time,
+    # and the condition numbers do not depend on the chunking
+    from similarity import estimate as E
+    from similarity.space import Material
+    from studies import conditioning as C
+
+    sizes, emulate = [], E.emulate
+
+    def counting(material, setups, **kw):
+        sizes.append(len(setups))
+        return emulate(material, setups, **kw)
+
+    monkeypatch.setattr(E, "emulate", counting)
+    m, store = Material(3.14, 0.74, 6.0), Store(tmp_path / "store")
+    whole = C.conditioning(tmp_path / "whole", m, steps=4, store=store, simulator=SIM)
+    assert sizes == [16]
+    monkeypatch.setattr(C, "CHUNK", 5)
+    sizes.clear()
+    chunked = C.conditioning(tmp_path / "chunked", m, steps=4, store=store, simulator=SIM)
+    assert sizes == [5, 5, 5, 1]
+    np.testing.assert_array_equal(chunked["condition"], whole["condition"])
+    assert np.all(np.isfinite(whole["condition"])) and whole["simulations"] == 16 * 19
