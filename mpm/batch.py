@@ -188,6 +188,25 @@ def connect(scheduler: str):
 
 
 # -- evaluation -------------------------------------------------------------------------------------
+def _run(todo: dict[str, SimRequest], executor, finish: Callable[[str, SimResult], None]) -> None:
+    """Simulate ``todo`` (key -> request) via ``executor``, calling ``finish(key, result)`` as each completes.
+
+    Nothing is kept after ``finish``: a study of many simulations holds only the results its caller keeps.
+    """
+    ex = local_executor(0) if executor is None else as_executor(executor)
+    if isinstance(ex, InlineExecutor):  # one at a time, each finished before the next starts
+        for key, req in todo.items():
+            finish(key, run_one(req))
+        return
+    futures = {ex.submit(run_one, req): key for key, req in todo.items()}
+    try:
+        for fut in as_completed(futures):
+            finish(futures.pop(fut), fut.result())
+    finally:
+        for fut in futures:
+            fut.cancel()
+
+
 def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, executor=None,
              on_result: Callable[[SimRequest, SimResult, bool], None] | None = None) -> list[SimResult]:
     """Results of ``requests`` in order: from the store where present, else simulated via ``executor``.
@@ -208,6 +227,7 @@ def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, exec
                 on_result(req, hit, True)
         else:
             todo[key] = req
+
     def finish(key: str, res: SimResult) -> None:
         if store is not None:
             store.put(todo[key], res)
@@ -215,19 +235,7 @@ def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, exec
         if on_result:
             on_result(todo[key], res, False)
 
-    if todo:
-        ex = local_executor(0) if executor is None else as_executor(executor)
-        if isinstance(ex, InlineExecutor):  # one at a time, each stored before the next starts
-            for key, req in todo.items():
-                finish(key, run_one(req))
-        else:
-            futures = {ex.submit(run_one, req): key for key, req in todo.items()}
-            try:
-                for fut in as_completed(futures):
-                    finish(futures[fut], fut.result())
-            finally:
-                for fut in futures:
-                    fut.cancel()
+    _run(todo, executor, finish)
     return [results[req.key] for req in requests]
 
 
@@ -235,38 +243,46 @@ def evaluate_losses(jobs: Iterable[tuple[SimRequest, str, np.ndarray]], *, store
                     executor=None, on_result=None) -> np.ndarray:
     """Video losses (eq. 3) of ``(request, experiment_id, reference_frames)`` jobs; NaN for failures.
 
-    Cached losses are served from the store without loading arrays; missing simulations are run
-    through :func:`evaluate` and their losses stored.
+    Cached losses are served from the store without loading arrays; a stored simulation without that loss is
+    loaded and scored; the rest are simulated, stored and scored as they complete, their silhouettes then
+    dropped, so memory does not grow with the number of jobs.
     """
     jobs = list(jobs)
     out = np.full(len(jobs), np.nan)
-    missing = []
+    by_key: dict[str, list[int]] = {}
     for i, (req, exp_id, _) in enumerate(jobs):
         cached = store.get_loss(req, exp_id) if store is not None else None
         if cached is None:
-            missing.append(i)
+            by_key.setdefault(req.key, []).append(i)
         else:
             out[i] = cached
             if on_result:
                 on_result(req, None, True)
-    if missing:
-        by_key: dict[str, list[int]] = {}
-        for i in missing:
-            by_key.setdefault(jobs[i][0].key, []).append(i)
 
-        from mpm.loss import video_loss
+    def score(req: SimRequest, res: SimResult, cached: bool) -> None:
+        for i in by_key[req.key]:
+            _, exp_id, ref = jobs[i]
+            out[i] = float(video_loss(res.silhouettes, ref)) if res.ok and res.silhouettes is not None else float("nan")
+            if store is not None:
+                store.put_loss(req, exp_id, out[i])
+        if on_result:
+            on_result(req, res, cached)
 
-        def _done(req, res, cached):
-            for i in by_key.get(req.key, []):
-                _, exp_id, ref = jobs[i]
-                loss = float(video_loss(res.silhouettes, ref)) if res.ok and res.silhouettes is not None else float("nan")
-                out[i] = loss
-                if store is not None:
-                    store.put_loss(req, exp_id, loss)
-            if on_result:
-                on_result(req, res, cached)
+    todo: dict[str, SimRequest] = {}
+    for key, idx in by_key.items():
+        req = jobs[idx[0]][0]
+        hit = store.get(req) if store is not None else None
+        if hit is not None:
+            score(req, hit, True)
+        else:
+            todo[key] = req
 
-        evaluate([jobs[i][0] for i in missing], store=store, executor=executor, on_result=_done)
+    def finish(key: str, res: SimResult) -> None:
+        if store is not None:
+            store.put(todo[key], res)
+        score(todo[key], res, False)
+
+    _run(todo, executor, finish)
     return out
 
 

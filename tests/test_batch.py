@@ -50,6 +50,31 @@ def test_process_pool_matches_inline(tmp_path):
         assert np.array_equal(a.silhouettes, b.silhouettes)
 
 
+def test_losses_of_a_large_batch_do_not_keep_its_silhouettes(tmp_path):
+    # a study of tens of thousands of simulations (Fig. 9 at the paper's 51 x 51 setups) keeps only losses:
+    # each result is stored, scored and dropped as it completes
+    import gc
+    import weakref
+    from concurrent.futures import ThreadPoolExecutor
+
+    reqs = _requests(n=8)
+    ref = batch.run_one(reqs[0]).silhouettes
+    seen, held = [], []
+
+    def on_result(req, res, cached):  # how many earlier results are still in memory when this one arrives
+        gc.collect()
+        held.append(sum(r() is not None for r in seen))
+        seen.append(weakref.ref(res))
+
+    with ThreadPoolExecutor(2) as ex:
+        losses = batch.evaluate_losses([(r, "exp", ref) for r in reqs], store=Store(tmp_path), executor=ex,
+                                       on_result=on_result)
+    assert len(held) == len(reqs) and max(held) <= 1  # at most the previous one, not yet released by the loop
+    inline = batch.evaluate_losses([(r, "exp", ref) for r in reqs], executor=batch.InlineExecutor())
+    np.testing.assert_array_equal(losses, inline)
+    assert losses[0] == 0.0 and np.all(losses[1:] > 0)
+
+
 def test_dask_local_cluster_matches_local(tmp_path):
     distributed = pytest.importorskip("distributed")
     reqs = _requests()
