@@ -188,13 +188,29 @@ def connect(scheduler: str):
 
 
 # -- evaluation -------------------------------------------------------------------------------------
-def _run(todo: dict[str, SimRequest], executor, finish: Callable[[str, SimResult], None]) -> None:
-    """Simulate ``todo`` (key -> request) via ``executor``, calling ``finish(key, result)`` as each completes.
+def _serve(requests: Iterable[SimRequest], store: Store | None, executor,
+           done: Callable[[SimRequest, SimResult, bool], None]) -> None:
+    """``done(request, result, cached)`` once per distinct request: from the store where present, else simulated via
+    ``executor`` and stored as each completes.  Nothing is kept after ``done``, so a study of many simulations holds
+    only the results its caller keeps."""
+    seen, todo = set(), {}
+    for req in requests:
+        if req.key in seen:
+            continue
+        seen.add(req.key)
+        hit = store.get(req) if store is not None else None
+        if hit is not None:
+            done(req, hit, True)
+        else:
+            todo[req.key] = req
 
-    Nothing is kept after ``finish``: a study of many simulations holds only the results its caller keeps.
-    """
+    def finish(key: str, res: SimResult) -> None:
+        if store is not None:
+            store.put(todo[key], res)
+        done(todo[key], res, False)
+
     ex = local_executor(0) if executor is None else as_executor(executor)
-    if isinstance(ex, InlineExecutor):  # one at a time, each finished before the next starts
+    if isinstance(ex, InlineExecutor):  # one at a time, each stored before the next starts
         for key, req in todo.items():
             finish(key, run_one(req))
         return
@@ -215,27 +231,13 @@ def evaluate(requests: Sequence[SimRequest], *, store: Store | None = None, exec
     ``on_result(request, result, cached)`` is called once per distinct request (for progress bars).
     """
     results: dict[str, SimResult] = {}
-    todo: dict[str, SimRequest] = {}
-    for req in requests:
-        key = req.key
-        if key in results or key in todo:
-            continue
-        hit = store.get(req) if store is not None else None
-        if hit is not None:
-            results[key] = hit
-            if on_result:
-                on_result(req, hit, True)
-        else:
-            todo[key] = req
 
-    def finish(key: str, res: SimResult) -> None:
-        if store is not None:
-            store.put(todo[key], res)
-        results[key] = res
+    def keep(req: SimRequest, res: SimResult, cached: bool) -> None:
+        results[req.key] = res
         if on_result:
-            on_result(todo[key], res, False)
+            on_result(req, res, cached)
 
-    _run(todo, executor, finish)
+    _serve(requests, store, executor, keep)
     return [results[req.key] for req in requests]
 
 
@@ -268,21 +270,7 @@ def evaluate_losses(jobs: Iterable[tuple[SimRequest, str, np.ndarray]], *, store
         if on_result:
             on_result(req, res, cached)
 
-    todo: dict[str, SimRequest] = {}
-    for key, idx in by_key.items():
-        req = jobs[idx[0]][0]
-        hit = store.get(req) if store is not None else None
-        if hit is not None:
-            score(req, hit, True)
-        else:
-            todo[key] = req
-
-    def finish(key: str, res: SimResult) -> None:
-        if store is not None:
-            store.put(todo[key], res)
-        score(todo[key], res, False)
-
-    _run(todo, executor, finish)
+    _serve((jobs[idx[0]][0] for idx in by_key.values()), store, executor, score)
     return out
 
 
