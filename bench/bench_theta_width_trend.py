@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mpm import batch  # noqa: E402
 from mpm.store import Store  # noqa: E402
-from similarity.emulation import emulate  # noqa: E402
-from similarity.presets import Preset, simulation_request  # noqa: E402
-from similarity.space import Material, Setup, denormalize, normalize  # noqa: E402
+from similarity.emulation import emulate, probe_jobs  # noqa: E402
+from similarity.presets import Preset  # noqa: E402
+from similarity.space import Material, Setup  # noqa: E402
 from studies.landscapes import grid_offsets, match  # noqa: E402
 from surrogate.theta import load as load_theta  # noqa: E402
 
@@ -65,9 +65,7 @@ def main(argv=None) -> int:
                 t0 = time.perf_counter()
                 preset = Preset("bench", generations=1, cell_mm=cell, ppc=a.ppc)
                 shots = emulate(m, setups, density=1000.0, preset=preset, store=store, executor=ex)
-                u0 = normalize(m.as_array())
-                jobs = [(simulation_request(Material.from_array(denormalize(u0 + du)), shot, preset),
-                         batch.experiment_id(shot.frames, shot.name), shot.frames) for shot in shots for du in block]
+                jobs = [j for shot in shots for j in probe_jobs(m, shot, block, preset)]
                 losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(setups), -1)
                 cs = [match(m, row, GRID, HALF_WIDTH)["C_Pa"] for row in losses]
                 print(f"  MPM, {cell:g} mm cells, {a.ppc} per axis: {' / '.join(f'{c:5.1f}' for c in cs)}"

@@ -24,10 +24,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from mpm import batch  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
 from mpm.store import Store  # noqa: E402
-from similarity.emulation import emulate  # noqa: E402
+from similarity.emulation import emulate, probe_jobs  # noqa: E402
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil  # noqa: E402
-from similarity.presets import Preset, simulation_request  # noqa: E402
-from similarity.space import Material, Setup, denormalize, normalize  # noqa: E402
+from similarity.presets import Preset  # noqa: E402
+from similarity.space import Material, Setup  # noqa: E402
 
 # inside the region the landscape studies sample; setups from both ends of the setup space
 PAIRS = (((3.45, 0.738, 6.26), (42.0, 38.0)), ((9.82, 0.705, 12.9), (64.0, 37.0)), ((10.0, 0.6, 10.0), (30.0, 20.0)),
@@ -66,13 +66,10 @@ def main(argv=None) -> int:
         for mat, (w, h) in PAIRS:
             t0 = time.perf_counter()
             m, setup = Material(*mat), Setup(w, h)
-            u0 = normalize(m.as_array())
             normals = []
             for name, camera in views.items():
                 shot = emulate(m, [setup], preset=preset, camera=camera, store=store, executor=ex)[0]
-                jobs = [(simulation_request(Material.from_array(denormalize(u0 + du)), shot, preset),
-                         batch.experiment_id(shot.frames, shot.name), shot.frames) for du in offsets]
-                losses = batch.evaluate_losses(jobs, store=store, executor=ex)
+                losses = batch.evaluate_losses(probe_jobs(m, shot, offsets, preset), store=store, executor=ex)
                 spec = spectrum(hessian_from_stencil(losses, a.fd_step))
                 normals.append(spec.q_max)
                 print(f"  {mat} in {setup} mm, {name:>14}: q_max {np.round(spec.q_max, 3)}, "

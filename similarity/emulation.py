@@ -9,7 +9,7 @@ from mpm import batch
 from mpm.experiment import Experiment
 from mpm.store import Store
 from similarity.presets import get_preset, simulation_request
-from similarity.space import Material, Setup
+from similarity.space import Material, Setup, denormalize, normalize
 
 
 def _default_camera():
@@ -49,3 +49,13 @@ def simulated_frames(material: Material, experiments, *, preset="footage", store
     reqs = [simulation_request(material, e, model, simulator) for e in experiments]
     ex = executor if executor is not None else batch.InlineExecutor()
     return [r.silhouettes if r.ok else None for r in batch.evaluate(reqs, store=store, executor=ex)]
+
+
+def probe_jobs(material: Material, experiment: Experiment, offsets, model,
+               simulator: str = batch.DEFAULT_SIMULATOR) -> list:
+    """:func:`mpm.batch.evaluate_losses` jobs: ``material`` moved by each of ``offsets`` (normalised material space),
+    simulated in ``experiment``'s setup at ``model`` and scored against its footage."""
+    eid = batch.experiment_id(experiment.frames, experiment.name)
+    u0 = normalize(material.as_array())
+    return [(simulation_request(Material.from_array(denormalize(u0 + du)), experiment, model, simulator), eid,
+             experiment.frames) for du in offsets]

@@ -9,8 +9,9 @@ import numpy as np
 
 from mpm import batch
 from similarity import estimate as E
+from similarity.emulation import probe_jobs
 from similarity.fd_hessian import hessian_from_stencil, spectrum, stencil
-from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, normalize
+from similarity.space import SETUP_RANGE_MM, Material, Setup, normalize
 from studies.report import save_figure, write_json
 
 
@@ -23,12 +24,7 @@ def _stencil_losses(material, setups, probes, preset, store, executor, simulator
     """Losses (len(setups), len(probes)) of the FD stencil around ``material`` against its own footage."""
     shots = E.emulate(material, setups, density=density, preset=preset, store=store, executor=executor,
                       simulator=simulator)
-    u0 = normalize(material.as_array())
-    jobs = []
-    for e in shots:
-        eid = batch.experiment_id(e.frames, e.name)
-        jobs += [(E.simulation_request(Material.from_array(denormalize(u0 + du)), e, preset.final, simulator), eid,
-                  e.frames) for du in probes]
+    jobs = [j for e in shots for j in probe_jobs(material, e, probes, preset.final, simulator)]
     return batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
 
 

@@ -38,6 +38,7 @@ import numpy as np
 from mpm import batch
 from mpm.files import read_json
 from similarity import estimate as E
+from similarity.emulation import probe_jobs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
 from similarity.normals import normals_at
 from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, normalize
@@ -232,14 +233,7 @@ def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batc
     block = grid_offsets(config.grid, config.half_width)
     probes = stencil(config.fd_step)
     offsets = np.vstack([block, probes])
-    jobs = []
-    for p, ref in zip(pairs, frames):
-        f = ref.frames
-        eid = batch.experiment_id(f, ref.name)
-        u0 = normalize(p.material.as_array())
-        for du in offsets:
-            req = E.simulation_request(Material.from_array(denormalize(u0 + du)), ref, preset.final, simulator)
-            jobs.append((req, eid, f))
+    jobs = [j for p, ref in zip(pairs, frames) for j in probe_jobs(p.material, ref, offsets, preset.final, simulator)]
     say(f"{len(jobs)} landscape probes ({len(offsets)} per pair)")
     tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
     losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(pairs), -1)
