@@ -52,8 +52,13 @@ class Engine:
             return
         cap = max(nodes, int(1.5 * self.cap_g), 4096)
         self.grid = ti.Vector.ndarray(self.dim + 1, self.dtype, self.tasks * cap)
-        self.grid.fill(0)
+        self.zero(self.grid)
         self.cap_g = cap
+
+    def zero(self, arr) -> None:
+        """Set a vector or matrix ndarray to zero. (Taichi's ``fill`` on those instantiates a template kernel
+        per call and keeps it: about 8 KB per call, which added up to 30 KB per simulation.)"""
+        arr.from_numpy(np.zeros(tuple(arr.shape) + tuple(arr.element_type.shape()), self.np_dtype))
 
 
 def engine(dim: int, precision: str) -> Engine:

@@ -163,8 +163,8 @@ class _Run:
         flags = np.zeros(cap, np.int32)
         flags[: self.count] = np.where(hidden, kn.HIDDEN, 0)
         eng.x.from_numpy(x)
-        eng.v.fill(0)
-        eng.C.fill(0)
+        eng.zero(eng.v)
+        eng.zero(eng.C)
         eng.be.from_numpy(be)
         eng.iso.fill(1)  # b_e = I
         eng.loge.fill(NO_WARM_START)
@@ -183,7 +183,7 @@ class _Run:
         first = eng.acc.to_numpy()
         span = first[:, 3:3 + d].max(0) + 3 - first[:, :d].min(0)
         eng.ensure_grid(int(np.prod(span)) * 2)
-        eng.grid.fill(0)  # the previous run leaves its last window behind
+        eng.zero(eng.grid)  # the previous run leaves its last window behind
 
     def _launch(self, steps: int, dt: float) -> None:
         eng = self.eng
