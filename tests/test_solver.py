@@ -5,6 +5,7 @@ the default of one particle per cell per axis).
 """
 import functools
 import math
+import os
 from types import SimpleNamespace as NS
 
 import numpy as np
@@ -209,10 +210,10 @@ def _rss_mb() -> float:
         return int(f.read().split()[1]) * 4096 / 1e6
 
 
-@pytest.mark.skipif(not __import__("os").path.exists("/proc/self/statm"), reason="needs Linux /proc for the RSS")
+@pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="needs Linux /proc for the RSS")
 def test_repeated_simulations_do_not_grow_the_process():
     # a worker of a landscape or conditioning study runs tens of thousands of simulations; each one must give back
-    # what it took (Taichi's ndarray.fill on vector arrays kept 8 KB a call: 30 KB a simulation, 1 GB a worker)
+    # what it took (Taichi's ndarray.fill on vector arrays kept 8 KB a call: 30 KB a simulation, 0.7 GB a worker)
     run = functools.partial(solver.simulate, NS(eta=1.0, n=0.8, sigma_y=5.0), NS(width_mm=20.0, height_mm=20.0),
                             density=1000.0, cell_mm=5.0, ppc=1, dim=2)
     for _ in range(10):
@@ -220,4 +221,4 @@ def test_repeated_simulations_do_not_grow_the_process():
     before = _rss_mb()
     for _ in range(150):
         run()
-    assert _rss_mb() - before < 1.5  # MB over 150 simulations; with the leak above, 3.6 MB
+    assert _rss_mb() - before < 1.5  # MB over 150 simulations; with the leak above, 3.2 MB
