@@ -11,20 +11,14 @@ One ``step`` launch advances the dam-break by one time step (paper section 4, ap
    (eq. 52), plastic correction ``mpm.constitutive.return_mapping`` (eq. 57); particles inside a wall box
    are frozen (v = 0, C = 0); advection x += dt v.
 With one thread all the steps up to the next time-step update run in one launch (a serial loop).
-The grid is a dense window over the particles' stencil bounding box, recomputed every step; grid nodes
-sit at integer multiples of the cell width (the wall planes x = 0, y = 0, z = 0 are nodes).
+The grid window and the uGIMP stencil are in ``mpm.stencil``, the wall tests and the slip law in ``mpm.walls``.
 """
-import itertools
-
 import taichi as ti
 
-# layout of the small int32 control array ``win``
-OX, NX, COUNT, OVERFLOW, ERROR, DONE, NEED = 0, 3, 6, 7, 8, 9, 10
+from mpm.stencil import COUNT, DONE, ERROR, NEED, NX, OVERFLOW, OX, build_stencil  # noqa: F401 (layout re-exported)
+from mpm.walls import build_walls
+
 HIDDEN, PLASTIC, FROZEN = 1, 2, 4  # particle flag bits
-# walls (boxes of ``mpm.scene.DamBreak.boxes``, in that order): (normal axis, normal sign, face of the box
-# that is the wall plane); in 2D only the floor and the back wall exist
-WALL_NORMALS = ((1, 1, 1), (0, 1, 1), (2, 1, 1), (2, -1, 0))
-N_WALLS = {2: 2, 3: 4}
 ERRORS = {1: "a particle position became NaN", 2: "particles left the region the flow can reach"}
 
 
@@ -36,90 +30,9 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     D = dim
     nd = ti.types.ndarray()
     serial = tasks == 1 and not atomic
-
-    @ti.func
-    def ugimp(X, l):
-        """uGIMP weights per axis for stencil nodes base + 0..2.
-
-        X: position in cell units relative to the window origin, l = l_p / dx <= 1/2 (1/4 with two
-        particles per cell). Returns base, fx = X - base in [l, 1 + l), the normalised 1D factors
-        N = S / (2 l_p) (they sum to 1) and dN/dx_p in cell units. With r = fx - o = (x_p - x_i)/dx:
-        N = 1 - (l^2 + r^2) / (2 l) for |r| < l, 1 - |r| for |r| < 1 - l, (1 + l - |r|)^2 / (4 l) for
-        |r| < 1 + l, else 0; node 0 sees r in [l, 1 + l), node 1 [l - 1, l), node 2 [l - 2, l - 1).
-        """
-        base = ti.floor(X - l, ti.i32)
-        fx = X - base
-        q = 0.25 / l
-        w = ti.Matrix.zero(float, D, 3)
-        dw = ti.Matrix.zero(float, D, 3)
-        for a in ti.static(range(D)):
-            r0 = fx[a]  # node 0
-            if r0 < 1.0 - l:
-                w[a, 0] = 1.0 - r0
-                dw[a, 0] = -1.0
-            else:
-                e0 = 1.0 + l - r0
-                w[a, 0] = q * e0 * e0
-                dw[a, 0] = -2.0 * q * e0
-            r1 = fx[a] - 1.0  # node 1
-            if r1 > -l:
-                w[a, 1] = 1.0 - 2.0 * q * (l * l + r1 * r1)
-                dw[a, 1] = -4.0 * q * r1
-            else:
-                w[a, 1] = 1.0 + r1
-                dw[a, 1] = 1.0
-            e2 = l - 1.0 + fx[a]  # node 2: 1 + l - |r2|
-            if e2 > 0.0:
-                w[a, 2] = q * e2 * e2
-                dw[a, 2] = 2.0 * q * e2
-        return base, fx, w, dw
-
-    @ti.func
-    def window(win: ti.template()):
-        """Origin (in cells: node (0,..) of the window sits at origin * dx) and flat-index strides."""
-        origin = ti.Vector([win[OX + a] for a in ti.static(range(D))])
-        stride = ti.Vector.one(ti.i32, D)
-        for a in ti.static(range(D - 2, -1, -1)):
-            stride[a] = stride[a + 1] * win[NX + a + 1]
-        return origin, stride
-
+    ugimp, window, lead_weights, column, LEADS = build_stencil(D)
     L = D - 1  # the last axis: unit stride in the grid, innermost in the stencil loops
-    LEADS = [tuple(int(i) for i in idx) for idx in itertools.product(range(3), repeat=L)]
-
-    @ti.func
-    def lead_weights(w, dw, lead: ti.template()):
-        """Weight and gradient factors of the stencil nodes (lead, k), k = 0..2 along the last axis:
-        weight = wl w[L, k]; gradient = (gl[0] w[L, k], .., gl[L-1] w[L, k], wl dw[L, k]) (cell units)."""
-        wl = 1.0
-        gl = ti.Vector.one(float, D)
-        for a in ti.static(range(L)):
-            wl *= w[a, lead[a]]
-            for b in ti.static(range(L)):
-                gl[b] *= dw[a, lead[a]] if a == b else w[a, lead[a]]
-        return wl, gl
-
-    @ti.func
-    def column(m, a: ti.template()):
-        return ti.Vector([m[r, a] for r in ti.static(range(D))])
-
-    @ti.func
-    def load_boxes(boxes: ti.template()):
-        """The wall boxes as a local 8 x 3 matrix: row 2 b + s is corner s (0: low, 1: high) of box b."""
-        return ti.Matrix([[boxes[r // 2, r % 2, a] for a in ti.static(range(3))] for r in ti.static(range(8))])
-
-    @ti.func
-    def in_box(bx, b: ti.template(), pos, z):
-        """(inside x and y ranges, inside z range) of static box b of ``load_boxes``, inclusive bounds."""
-        in_xy = (bx[2 * b, 0] <= pos[0] <= bx[2 * b + 1, 0]) and (bx[2 * b, 1] <= pos[1] <= bx[2 * b + 1, 1])
-        in_z = bx[2 * b, 2] <= z <= bx[2 * b + 1, 2]
-        return in_xy, in_z
-
-    @ti.func
-    def zcoord(pos, zmid):
-        z = zmid
-        if ti.static(D == 3):
-            z = pos[2]
-        return z
+    load_boxes, in_box, zcoord, navier_slip = build_walls(D, window)
 
     @ti.func
     def block(m):
@@ -252,55 +165,6 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         v[p] = vp
         C[p] = B
         return xn, vp
-
-    @ti.func
-    def navier_slip(i, grid: ti.template(), win: ti.template(), bx, dx, inv_dx, zmid, slip):
-        """Tangential velocity of wall node i from the Navier slip law with slip length ``slip`` (m).
-
-        The velocity profile u(s) = gamma (b + s) (s: signed distance from the wall plane, > 0 in the
-        material, b the slip length; it vanishes at s = -b) is fitted through the first node outside
-        every wall along the wall normal, at s_f: u(s) = u_f max(b + s, 0) / (b + s_f). The normal
-        velocity is zero. Nodes in two walls (edges, corners) and nodes without a free neighbour stick.
-        """
-        origin, stride = window(win)
-        local = ti.Vector.zero(ti.i32, D)
-        rest = i
-        for a in ti.static(range(D - 1, -1, -1)):
-            local[a] = rest % win[NX + a]
-            rest = rest // win[NX + a]
-        pos = ti.Vector([(local[a] + origin[a]) * dx for a in ti.static(range(D))])
-        z = zcoord(pos, zmid)
-        inside = 0
-        wall = -1
-        for b in ti.static(range(4)):
-            in_xy, in_z = in_box(bx, b, pos, z)
-            if in_xy and in_z:
-                inside += 1
-                wall = b
-        vel = ti.Vector.zero(float, D)
-        if inside == 1:
-            for b in ti.static(range(N_WALLS[D])):
-                if wall == b:
-                    axis, sign, face = ti.static(WALL_NORMALS[b])
-                    s = sign * (pos[axis] - bx[2 * b + face, axis])  # <= 0: inside the wall
-                    k = ti.floor(-s * inv_dx, ti.i32) + 1  # nodes to the first one outside
-                    j = local[axis] + sign * k
-                    if 0 <= j < win[NX + axis]:
-                        fpos = pos
-                        fpos[axis] += sign * k * dx
-                        fz = zcoord(fpos, zmid)
-                        free = True
-                        for c in ti.static(range(4)):
-                            in_xy, in_z = in_box(bx, c, fpos, fz)
-                            if in_xy and in_z:
-                                free = False
-                        if free:
-                            gf = grid[i + sign * k * stride[axis]]
-                            factor = ti.max(slip + s, 0.0) / (slip + s + k * dx)  # Navier profile
-                            for a in ti.static(range(D)):
-                                if a != axis:
-                                    vel[a] = gf[a] * factor
-        return inside, vel
 
     @ti.func
     def grid_node(I, grid: ti.template(), win: ti.template(), bx, capg, dt, dx, body, zmid):
