@@ -59,6 +59,27 @@ def _sure_offsets(r_min: float) -> np.ndarray | None:
     return sure if sure.any() else None
 
 
+def _dilate(mask: np.ndarray, footprint: np.ndarray) -> np.ndarray:
+    """Binary dilation of ``mask`` by a point-symmetric ``footprint`` (odd sizes, centred), False outside the
+    image: ``scipy.ndimage.binary_dilation``, or, when few pixels are set, the same pixels found by stamping the
+    footprint at each of them (scipy costs about 0.5 ns per image pixel and footprint element, stamping about
+    15 ns per set pixel and element: seven times faster for the few particles of a 5 mm model)."""
+    ys, xs = np.nonzero(mask)
+    if 30 * len(ys) > mask.size:
+        return ndimage.binary_dilation(mask, structure=footprint)
+    oy, ox = np.nonzero(footprint)
+    oy, ox = oy - footprint.shape[0] // 2, ox - footprint.shape[1] // 2
+    out = np.zeros_like(mask)
+    h, w = mask.shape
+    chunk = max(1, 4_000_000 // len(oy))
+    for s in range(0, len(ys), chunk):
+        py = (ys[s:s + chunk, None] + oy).ravel()
+        px = (xs[s:s + chunk, None] + ox).ravel()
+        keep = (py >= 0) & (py < h) & (px >= 0) & (px < w)
+        out[py[keep], px[keep]] = True
+    return out
+
+
 def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float | None = None, *,
            spacing_m: float | None = None, closing_px: int | None = None) -> np.ndarray:
     """Silhouette (height, width) bool of particles at ``positions_m`` (N, 3), metres, reference frame.
@@ -115,7 +136,7 @@ def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float
     sure = _sure_offsets(float(r_px.min()))
     if sure is not None:
         crop[cy[in_crop], cx[in_crop]] = True
-        crop = ndimage.binary_dilation(crop, structure=sure)
+        crop = _dilate(crop, sure)
         interior = ndimage.minimum_filter(crop, size=2 * k + 1, mode="constant", cval=False)
         edge = ~(in_crop & interior[np.clip(cy, 0, ch - 1), np.clip(cx, 0, cw - 1)])
         cx, cy, frac, r_px = cx[edge], cy[edge], frac[edge], r_px[edge]

@@ -5,8 +5,8 @@ from scipy import ndimage
 
 from mpm.camera import Camera
 from mpm.loss import iou
-from mpm.silhouette import (REFERENCE_RADIUS_M, REFERENCE_SPACING_M, box_corners, box_mask, default_radius_m,
-                            render, render_frames)
+from mpm.silhouette import (REFERENCE_RADIUS_M, REFERENCE_SPACING_M, _dilate, _sure_offsets, box_corners,
+                            box_mask, default_radius_m, render, render_frames)
 
 CAM = Camera.default()
 
@@ -40,6 +40,17 @@ def test_splats_cover_exactly_the_pixel_centres_inside_each_disk(radius):
     expected = brute_force(pts, CAM, radius)
     got = render(pts, CAM, radius_m=radius, closing_px=0)
     assert np.array_equal(got, expected)
+
+
+@pytest.mark.parametrize("density", [0.005, 0.02, 0.2])
+@pytest.mark.parametrize("r_min", [0.8, 3.2, 10.5])
+def test_dilation_is_scipys(r_min, density):
+    # sparse masks take the stamping path: the footprint at each set pixel, clipped at the image edges
+    rng = np.random.default_rng(int(r_min * 10))
+    mask = rng.random((60, 90)) < density
+    mask[0, 5] = mask[59, 89] = mask[30, 0] = True
+    sure = _sure_offsets(r_min)
+    assert np.array_equal(_dilate(mask, sure), ndimage.binary_dilation(mask, structure=sure))
 
 
 def test_dense_cuboid_shortcut_is_exact():
