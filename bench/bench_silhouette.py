@@ -2,9 +2,9 @@
 
     python bench/bench_silhouette.py            # synthetic particle clouds + shared data when present
 
-Prints (1) wall time of render_frames for 8 frames of 250-400k particles (250: a 5 mm model), (2) time to load an experiment
-folder (8 PNGs at 1920x1080 -> masks at 960x540), (3) per shared experiment the IoU of the projected
-initial cuboid with frame 1, as stated and with W and H swapped. Numbers go to docs/performance.md.
+Prints (1) wall time of render_frames for 8 frames of 250-400k particles (250: a 5 mm model), (2) time to
+load an experiment folder (8 PNGs at 1920x1080 -> masks at 960x540), (3) per shared experiment the IoU of the
+projected initial cuboid with frame 1, as stated and with W and H swapped. Numbers go to docs/performance.md.
 """
 from __future__ import annotations
 
