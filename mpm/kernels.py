@@ -15,7 +15,7 @@ The grid window and the uGIMP stencil are in ``mpm.stencil``, the wall tests and
 """
 import taichi as ti
 
-from mpm.stencil import COUNT, DONE, ERROR, NEED, NX, OVERFLOW, OX, build_stencil  # noqa: F401 (layout re-exported)
+from mpm.stencil import COUNT, DONE, ERROR, NEED, NX, OVERFLOW, OX, build_stencil
 from mpm.walls import build_walls
 
 HIDDEN, PLASTIC, FROZEN = 1, 2, 4  # particle flag bits
