@@ -9,7 +9,7 @@ One ``step`` launch advances the dam-break by one time step (paper section 4, ap
    effect: docs/performance.md, "Wall slip").
 3. G2P: v_p = sum w v_i, C_p = sum v_i (x) grad w, elastic predictor b* = F b F^T with F = I + dt C
    (eq. 52), plastic correction ``mpm.constitutive.return_mapping`` (eq. 57); particles inside a wall box
-   are frozen (v = 0, C = 0); advection x += dt v.
+   are frozen (v = 0, C = 0; with a slip length their elastic state too); advection x += dt v.
 With one thread all the steps up to the next time-step update run in one launch (a serial loop).
 The grid window and the uGIMP stencil are in ``mpm.stencil``, the wall tests and the slip law in ``mpm.walls``.
 """
@@ -105,7 +105,8 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     @ti.func
     def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
                      iso: ti.template(), loge: ti.template(), flags: ti.template(), grid: ti.template(), bx,
-                     origin, stride, dt, inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template()):
+                     origin, stride, dt, inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template(),
+                     slipping: ti.template()):
         xp = x[p]
         X = xp * inv_dx - origin
         base, fx, w, dw = ugimp(X, lh)
@@ -132,6 +133,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 B[r, L] += wl * gd[r]
         B *= inv_dx  # C_p = grad v: the grid velocity gradient, not Jiang et al.'s B D^-1
         b_old = be[p]
+        iso_old, loge_old = iso[p], loge[p]
         F = ti.Matrix.identity(float, 3) + dt * embed(B)
         b_trial = sandwich(F, b_old)  # elastic predictor, eq. 52 in its F b F^T form
         # eq. 57, identity when elastic; the Newton solve starts from the particle's last log(e)
@@ -159,6 +161,12 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             f |= FROZEN
             vp = ti.Vector.zero(float, D)
             B = ti.Matrix.zero(float, D, D)
+            if ti.static(slipping):
+                # the coating inside a slipping wall does not deform: its wall nodes move, and a strain
+                # integrated there at rest would grow without bound and push the material beside it
+                be[p] = b_old
+                iso[p] = iso_old
+                loge[p] = loge_old
         flags[p] = f
         xn = xp + dt * vp
         x[p] = xn
@@ -272,7 +280,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 if win[OVERFLOW] == 0 and win[ERROR] == 0:
                     origin, stride = window(win)
                     xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx, mu,
-                                          eta, nn, sy, zmid, lh, yue)
+                                          eta, nn, sy, zmid, lh, yue, slipping)
                     if (xn != xn).any():
                         win[ERROR] = 1
                     base = ti.floor(xn * inv_dx - lh, ti.i32)
@@ -290,7 +298,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                     origin, stride = window(win)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
                         xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx,
-                                              mu, eta, nn, sy, zmid, lh, yue)
+                                              mu, eta, nn, sy, zmid, lh, yue, slipping)
                         if (xn != xn).any():
                             bad = 1
                         base = ti.floor(xn * inv_dx - lh, ti.i32)
