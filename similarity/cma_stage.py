@@ -42,6 +42,7 @@ class Stage:
     generations: int  # budget spent, in generations of POPSIZE draws (what the progress bar counts)
     cell_mm: float  # discretisation of the stage's forward model
     ppc: int
+    slip_length_m: float = 0.0  # the walls' Navier slip length (0: sticking)
     history: list[dict] = field(default_factory=list)  # per generation: simulations, best loss, best x, ...
     next_setup: str | None = None
     wall_seconds: float = 0.0
@@ -224,7 +225,8 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
         setups=setups, x0=[float(v) for v in x0], sigma0=float(sigma0),
         material=Material.from_array(denormalize(np.clip(state.best_x, 0, 1))), loss=state.best_loss,
         evaluations=state.evaluations, simulations=state.simulations, generations=state.drawn // POPSIZE,
-        cell_mm=objective.model.cell_mm, ppc=objective.model.ppc, history=state.history,
+        cell_mm=objective.model.cell_mm, ppc=objective.model.ppc,
+        slip_length_m=objective.model.slip_length_m, history=state.history,
         wall_seconds=state.wall_seconds + time.perf_counter() - t0, archive=state.archive, screened=state.screened,
         finish=finish, cma_iterations=state.generation,
     )

@@ -38,13 +38,14 @@ class Estimate:
     setups: list[str]
     cell_mm: float  # discretisation at which ``loss`` was computed
     ppc: int
+    slip_length_m: float = 0.0  # the walls' Navier slip length of that model (0: sticking)
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
             "estimate": self.material.to_dict(),
             "loss": self.loss,
-            "discretisation": {"cell_mm": self.cell_mm, "ppc": self.ppc},
+            "discretisation": {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m},
             "warnings": list(self.warnings),
             "setups": self.setups,
             "next_setup": None if self.next_setup is None else str(self.next_setup),
@@ -162,8 +163,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
             x0 = normalize(stage.material.as_array())
         if preset.finish_generations > 0:  # coarse-to-fine: the last stage at the final discretisation
             n = len(stages)
-            x0, screened = warm_start(stages[-1], experiments[:n], model=preset.finish, **common)
-            stage = run_stage(experiments[:n], x0=x0, sigma0=preset.sigma0 * (2.0 / 3.0) ** n, model=preset.finish,
+            x0, screened = warm_start(stages[-1], experiments[:n], model=preset.final, **common)
+            stage = run_stage(experiments[:n], x0=x0, sigma0=preset.sigma0 * (2.0 / 3.0) ** n, model=preset.final,
                               seed=seed + n, generations=preset.finish_generations, stage_index=n + 1,
                               screened=screened, screened_simulations=n * len(screened), finish=True, **common)
             finish_stage(stage, [setup_of(e) for e in experiments[:n]])
@@ -177,6 +178,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
         wall_seconds=time.perf_counter() - t0,
         next_setup=None if last.next_setup is None else Setup.parse(last.next_setup),
         preset=preset.name, seed=int(seed), setups=last.setups, cell_mm=last.cell_mm, ppc=last.ppc,
+        slip_length_m=last.slip_length_m,
         warnings=bound_warnings(last.material),
     )
 

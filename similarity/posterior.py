@@ -16,7 +16,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -88,10 +88,10 @@ def discretisation_error(run: Run, executor=None) -> float:
     reported loss) and at half its cell width."""
     from mpm import batch
     from mpm.loss import video_loss
-    from similarity.presets import Discretisation, simulation_request
+    from similarity.presets import simulation_request
 
     model = run.preset.final.resolved()
-    fine = Discretisation(model.cell_mm / 2.0, model.ppc)
+    fine = replace(model, cell_mm=model.cell_mm / 2.0)
 
     ex = executor if executor is not None else batch.InlineExecutor()
 

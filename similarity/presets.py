@@ -6,7 +6,7 @@ footage: Algorithm 1 on a cheap model, finished at the solver's validated discre
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -18,22 +18,23 @@ PAPER_SIGMA0 = 0.1  # stage-1 step size in [0, 1]^3: the paper's Sigma = 1 in a 
 
 @dataclass(frozen=True)
 class Discretisation:
-    """MPM cell width in mm and particles per cell per axis; None: the solver's default (the validated one)."""
+    """The forward model of a stage: MPM cell width in mm, particles per cell per axis and the walls' Navier
+    slip length in metres; None: the solver's default (the validated discretisation, sticking walls)."""
 
     cell_mm: float | None = None
     ppc: int | None = None
+    slip_length_m: float | None = None
 
     def resolved(self) -> "Discretisation":
         """The same with the solver's defaults filled in."""
-        if self.cell_mm is not None and self.ppc is not None:
-            return Discretisation(float(self.cell_mm), int(self.ppc))
-        from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
+        from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL, SLIP_LENGTH_M
 
         return Discretisation(float(DEFAULT_CELL_MM if self.cell_mm is None else self.cell_mm),
-                              int(PARTICLES_PER_CELL if self.ppc is None else self.ppc))
+                              int(PARTICLES_PER_CELL if self.ppc is None else self.ppc),
+                              float(SLIP_LENGTH_M if self.slip_length_m is None else self.slip_length_m))
 
     def to_dict(self) -> dict:
-        return {"cell_mm": self.cell_mm, "ppc": self.ppc}
+        return {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m}
 
 
 VALIDATED = Discretisation()  # the solver's default: converged against a 2x finer run on the shared footage
@@ -56,15 +57,18 @@ class Preset:
     finish_generations: int = 0
     finish: Discretisation = VALIDATED
     purpose: str = ""
+    slip_length_m: float | None = None  # walls' Navier slip length in every stage; None: the solver's (sticking)
 
     @property
     def search(self) -> Discretisation:
-        return Discretisation(self.cell_mm, self.ppc)
+        return Discretisation(self.cell_mm, self.ppc, self.slip_length_m)
 
     @property
     def final(self) -> Discretisation:
         """The discretisation of the last stage, i.e. of the estimate's loss."""
-        return self.finish if self.finish_generations > 0 else self.search
+        if self.finish_generations > 0:
+            return replace(self.finish, slip_length_m=self.slip_length_m)
+        return self.search
 
 
 PRESETS = {p.name: p for p in (
@@ -105,5 +109,6 @@ def simulation_request(material, experiment, model, simulator: str = batch.DEFAU
     return batch.request_for(
         material, setup_of(experiment), density=float(experiment.density), depth_mm=float(experiment.depth_mm),
         camera=experiment.camera, cell_mm=model.cell_mm, ppc=model.ppc,
+        slip_length_m=model.slip_length_m or None,  # sticking walls keep the key they always had
         image_size=image_size or image_size_of(experiment), simulator=simulator,
     )

@@ -240,7 +240,7 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     assert fine.screened[0][:3] == pytest.approx(list(E.normalize(coarse[-1].material.as_array())))
     assert est.loss <= min(r[3] for r in fine.screened)
     d = est.to_dict()
-    assert d["discretisation"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL}
+    assert d["discretisation"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL, "slip_length_m": 0.0}
     assert d["warnings"] == E.bound_warnings(est.material)
 
 
