@@ -4,7 +4,7 @@ and the experiments it was fitted to (experiment folders, or emulated footage re
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -73,6 +73,9 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     result, estimate = read_result(folder)
     path = folder / "result.json"
     preset = get_preset(result.get("preset", "demo"))
+    # the walls the run was estimated with (runs that do not say it had sticking walls), whatever the preset's now
+    slip = (result.get("discretisation") or {}).get("slip_length_m") or None
+    preset = replace(preset, slip_length_m=slip)
     simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
     store = store if store is not None else Store(folder / "store")
     setups = [Setup.parse(s) for s in result.get("setups", [])]

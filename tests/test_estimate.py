@@ -256,3 +256,23 @@ def test_bound_warnings_name_the_parameter_and_bound(material, expected):
     lines = E.bound_warnings(material)
     assert [" ".join(w.split()[:1] + [w.split("space's ")[1].split()[0]]) for w in lines] == expected
     assert all("may lie outside" in w for w in lines)
+
+
+@pytest.mark.parametrize("recorded, expected", [(None, None), (0.0, None), (1e-3, 1e-3)])
+def test_a_run_is_reread_with_the_walls_it_was_estimated_with(tmp_path, shared_data, recorded, expected):
+    """load_run takes the slip length from the run's result, not from today's preset: a run that does not say
+    it (older runs) or says 0 had sticking walls; its report and re-scoring must simulate those walls."""
+    from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
+    from similarity.run_folder import load_run
+
+    folder = shared_data / "real_world" / "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
+    disc = {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL}
+    if recorded is not None:
+        disc["slip_length_m"] = recorded
+    (tmp_path / "result.json").write_text(json.dumps({
+        "estimate": {"eta": 1.0, "n": 0.6, "sigma_y": 2.0}, "preset": "footage", "folders": [str(folder)],
+        "setups": ["30x20"], "discretisation": disc}))
+    run = load_run(tmp_path)
+    assert run.preset.search.slip_length_m == expected and run.preset.final.slip_length_m == expected
+    req = E.simulation_request(run.estimate, run.experiments[0], run.preset.final)
+    assert req.slip_length_m == expected
