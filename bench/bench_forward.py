@@ -11,7 +11,6 @@ setup-2 footage at the experimenters' setup-1 estimate (the reference implementa
     python bench/bench_forward.py --experiments 4 # convergence on the first 4 (small) shared experiments only
     python bench/bench_forward.py --skip-timing --skip-loss --min-area-mm2 1000 --max-area-mm2 5000  # the large ones
     python bench/bench_forward.py --skip-timing --skip-convergence   # just the Worcestershire loss
-    python bench/bench_forward.py --skip-timing --skip-loss --only Worcestershire_4.0 --slip-mm 1  # one, slipping
 """
 import argparse
 import os
@@ -36,11 +35,10 @@ def load() -> str:
     return "load %.1f/%.1f" % os.getloadavg()[:2]
 
 
-def evaluate(material, setup, *, density=1000.0, cell_mm=None, camera=None, depth_mm=40.0, ppc=None,
-             slip_length_m=None):
+def evaluate(material, setup, *, density=1000.0, cell_mm=None, camera=None, depth_mm=40.0, ppc=None):
     """One evaluation (simulation to 1/3 s + 8 silhouettes)."""
     return mpm.simulate(material, setup, density=density, cell_mm=cell_mm, camera=camera or Camera.default(),
-                        depth_mm=depth_mm, ppc=ppc, slip_length_m=slip_length_m)
+                        depth_mm=depth_mm, ppc=ppc)
 
 
 def timing(paper_70: bool) -> None:
@@ -70,8 +68,7 @@ def _table1():
                             sigma_y=float(r["paper_sigma_y_Pa"])) for r in manifest()}
 
 
-def convergence(count: int | None, max_area: float, min_area: float = 0.0, only: str = "",
-                slip_length_m: float = 0.0) -> None:
+def convergence(count: int | None, max_area: float, min_area: float = 0.0) -> None:
     from mpm.experiment import iter_shared, load as load_experiment
     from mpm.loss import iou
 
@@ -80,18 +77,17 @@ def convergence(count: int | None, max_area: float, min_area: float = 0.0, only:
     for p in iter_shared():
         if p.name in table:
             e = load_experiment(p, frames=False)
-            if min_area < e.width_mm * e.height_mm <= max_area and only in p.name:
+            if min_area < e.width_mm * e.height_mm <= max_area:
                 folders.append(p)
     folders = folders[:count]
     fine = solver.DEFAULT_CELL_MM / 2
-    print(f"# silhouette convergence: IoU of cell {solver.DEFAULT_CELL_MM} mm vs {fine} mm, Table-1 parameters, "
-          f"slip length {slip_length_m * 1e3:g} mm")
+    print(f"# silhouette convergence: IoU of cell {solver.DEFAULT_CELL_MM} mm vs {fine} mm, Table-1 parameters")
     print(f"{'experiment':<52} {'mean IoU':>8} {'min IoU':>8} {'t_default':>9} {'t_fine':>7}  load")
     means = []
     for folder in folders:
         exp = load_experiment(folder, frames=False)
         setup = NS(width_mm=exp.width_mm, height_mm=exp.height_mm)
-        kw = dict(density=exp.density, camera=exp.camera, depth_mm=exp.depth_mm, slip_length_m=slip_length_m)
+        kw = dict(density=exp.density, camera=exp.camera, depth_mm=exp.depth_mm)
         try:
             a = evaluate(table[folder.name], setup, cell_mm=None, **kw)
             b = evaluate(table[folder.name], setup, cell_mm=fine, **kw)
@@ -131,8 +127,6 @@ def main(argv=None) -> None:
                     help="IoU study only on setups with W*H up to this (the 2x finer run costs 16x)")
     ap.add_argument("--min-area-mm2", type=float, default=0.0,
                     help="IoU study only on setups with W*H above this (with --max-area-mm2: split the study)")
-    ap.add_argument("--only", default="", metavar="TEXT", help="IoU study only on experiments whose folder has TEXT")
-    ap.add_argument("--slip-mm", type=float, default=0.0, help="walls' Navier slip length in the IoU study (mm)")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--skip-convergence", action="store_true")
     ap.add_argument("--skip-loss", action="store_true")
@@ -141,8 +135,7 @@ def main(argv=None) -> None:
     if not a.skip_timing:
         timing(a.paper_70)
     if not a.skip_convergence:
-        convergence(None if a.experiments == "all" else int(a.experiments), a.max_area_mm2, a.min_area_mm2, a.only,
-                    a.slip_mm * 1e-3)
+        convergence(None if a.experiments == "all" else int(a.experiments), a.max_area_mm2, a.min_area_mm2)
     if not a.skip_loss:
         worcestershire()
     print(f"# total {time.time() - t0:.0f} s")
