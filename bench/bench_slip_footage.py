@@ -5,8 +5,8 @@
 For each of the four shared materials with rheometer curves, the mean eq.-3 loss over its two setups at the
 solver's validated discretisation (1.5 mm, one particle per cell per axis) for two reference materials: the
 Herschel-Bulkley fit of its rheometer curve over 1-100 1/s, and the paper's estimate (Table 1). A wall law
-under which both fit the footage better is closer to the flows filmed. 16 simulations per slip length and
-material; about 6 minutes per slip length for all four on 2 cores (lotion's 70 x 70 mm setup is most of it).
+under which both fit the footage better is closer to the flows filmed. 4 simulations per slip length and
+material (64 for the defaults); about 10 minutes on 2 cores (lotion's 70 x 70 mm setup is half of it).
 Prints a markdown table (per setup in brackets).
 """
 from __future__ import annotations

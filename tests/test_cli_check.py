@@ -130,3 +130,10 @@ def test_real_process_exit_code(good, tmp_path):
                            str(tmp_path / "f.png")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr and "config_02" in proc.stderr
+
+
+def test_estimate_refuses_a_negative_slip_length_before_any_work(capsys, good, tmp_path):
+    assert main(["estimate", str(good), "--out", str(tmp_path / "o"), "--slip-mm", "-1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "virheo estimate: error: --slip-mm -1 must be within 0-1000 mm (0: sticking walls)"
+    assert not (tmp_path / "o").exists()

@@ -19,6 +19,9 @@ def register(subparsers) -> None:
                    help="experiment folders (settings.xml, camera_params.xml, config_01..08.png)")
     add_preset_option(p, default="footage")
     p.add_argument("--seed", type=seed, default=0, help="CMA-ES seed (default 0)")
+    p.add_argument("--slip-mm", type=float, default=None, metavar="B",
+                   help="Navier slip length of the floor and walls in mm, in every stage (default: the preset's, "
+                   "sticking; measured effect in docs/performance.md, Wall slip)")
     add_run_options(p, default_out=None)
     p.set_defaults(func=run)
 
@@ -42,21 +45,29 @@ def load_experiments(dirs, command: str) -> list:
 
 
 def run(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from similarity import estimate as E
     from studies.report import write_estimate_report
 
     check_run_options(args)
+    preset = E.get_preset(args.preset)
+    if args.slip_mm is not None:
+        if not 0.0 <= args.slip_mm <= 1000.0:  # also refuses nan
+            raise ValueError(f"--slip-mm {args.slip_mm:g} must be within 0-1000 mm (0: sticking walls)")
+        preset = replace(preset, slip_length_m=args.slip_mm * 1e-3 or None)
     experiments = load_experiments(args.dirs, "estimate")
     with open_run(args) as run:
-        est = E.estimate(experiments, preset=args.preset, seed=args.seed, executor=run.executor, store=run.store,
+        est = E.estimate(experiments, preset=preset, seed=args.seed, executor=run.executor, store=run.store,
                          generations=args.generations, progress=run.progress, simulator=run.simulator)
-        frames = E.simulated_frames(est.material, experiments, preset=args.preset, store=run.store,
+        frames = E.simulated_frames(est.material, experiments, preset=preset, store=run.store,
                                     executor=run.executor, simulator=run.simulator)
         write_estimate_report(run.out, est, experiments, frames=frames,
                               extra={"folders": [str(Path(d).resolve()) for d in args.dirs], **run.counts()})
     m = est.material
     print(f"estimate: eta = {m.eta:.4g} Pa s^n, n = {m.n:.4g}, sigma_y = {m.sigma_y:.4g} Pa "
-          f"(loss {est.loss:.5f} at {est.cell_mm:g} mm cells, {est.ppc} particle(s) per cell per axis; "
+          f"(loss {est.loss:.5f} at {est.cell_mm:g} mm cells, {est.ppc} particle(s) per cell per axis"
+          f"{f', walls slipping {est.slip_length_m * 1e3:g} mm' if est.slip_length_m else ''}; "
           f"{run.cost_line(est.simulations)})")
     for w in est.warnings:
         sys.stderr.write(f"virheo estimate: warning: {w}\n")
