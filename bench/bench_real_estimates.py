@@ -1,6 +1,6 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
-    python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--only lotion milk] [--workers 2]
+    python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B] [--only lotion milk] [--workers 2]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
 okonomiyaki, lotion) runs unless ROOT/<slug>/result.json already holds a finished run (then it is only scored;
@@ -84,6 +84,7 @@ def main(argv=None) -> int:
     p.add_argument("--preset", default="footage")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--slip-mm", default=None, help="passed to virheo estimate: walls slipping by this many mm")
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
     args = p.parse_args(argv)
     root = Path(args.root)
@@ -102,7 +103,8 @@ def main(argv=None) -> int:
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),
-                           "--workers", str(args.workers), "--quiet"])
+                           "--workers", str(args.workers), "--quiet",
+                           *(["--slip-mm", args.slip_mm] if args.slip_mm is not None else [])])
             if code:
                 return code
             results.setdefault(slug, {})["measured"] = {
