@@ -74,8 +74,7 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     path = folder / "result.json"
     preset = get_preset(result.get("preset", "demo"))
     # the walls the run was estimated with (runs that do not say it had sticking walls), whatever the preset's now
-    slip = (result.get("discretisation") or {}).get("slip_length_m") or None
-    preset = replace(preset, slip_length_m=slip)
+    preset = replace(preset, slip_length_m=(result.get("discretisation") or {}).get("slip_length_m", 0.0))
     simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
     store = store if store is not None else Store(folder / "store")
     setups = [Setup.parse(s) for s in result.get("setups", [])]

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     if args.slip_mm is not None:
         if not 0.0 <= args.slip_mm <= 1000.0:  # also refuses nan
             raise ValueError(f"--slip-mm {args.slip_mm:g} must be within 0-1000 mm (0: sticking walls)")
-        preset = replace(preset, slip_length_m=args.slip_mm * 1e-3 or None)
+        preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
     experiments = load_experiments(args.dirs, "estimate")
     with open_run(args) as run:
         est = E.estimate(experiments, preset=preset, seed=args.seed, executor=run.executor, store=run.store,
