@@ -40,6 +40,15 @@ def _material(d: dict):
     return Material(float(d["eta"]), float(d["n"]), float(d["sigma_y"]))
 
 
+def rheometer_curves() -> dict:
+    """Material name -> its rheometer flow curve (``surrogate.rheometer.FlowCurve``) from the shared data."""
+    from mpm.datasets import require_data_dir
+    from surrogate.rheometer import MATERIALS, read_flow_curve
+
+    return {MATERIALS[f.name.split("_")[0]]: read_flow_curve(f)
+            for f in sorted((require_data_dir() / "rheometer").glob("*.csv"))}
+
+
 def score(out: Path, paper, curve, workers: int) -> dict:
     """Loss of our estimate and the paper's under the run's final forward model, and their flow-curve RMS."""
     from mpm import batch
@@ -73,10 +82,9 @@ def score(out: Path, paper, curve, workers: int) -> dict:
 
 def main(argv=None) -> int:
     from mpm import experiment as xp
-    from mpm.datasets import manifest, real_world_dir, require_data_dir
+    from mpm.datasets import manifest, real_world_dir
     from similarity.space import Material
     from studies.cli import main as virheo
-    from surrogate.rheometer import MATERIALS, read_flow_curve
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--root", default=os.path.expanduser("~/.cache/virheometry/real_estimates"),
@@ -88,8 +96,7 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
     args = p.parse_args(argv)
     root = Path(args.root)
-    curves = {MATERIALS[f.name.split("_")[0]]: read_flow_curve(f)
-              for f in sorted((require_data_dir() / "rheometer").glob("*.csv"))}
+    curves = rheometer_curves()
     summary_path = root / "real_estimates.json"
     results = json.loads(summary_path.read_text()) if summary_path.exists() else {}
     rows = manifest()

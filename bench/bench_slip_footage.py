@@ -20,18 +20,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
 
-SLUGS = {"Japanese thickened Worcestershire sauce": "worcestershire", "moisturizing milk": "milk",
-         "Japanese cabbage pancake sauce": "okonomiyaki", "lotion": "lotion"}
+from bench_real_estimates import SLUGS, rheometer_curves  # noqa: E402  (bench/ is this script's folder)
 
 
 def main(argv=None) -> int:
     from mpm import batch
     from mpm import experiment as xp
-    from mpm.datasets import manifest, real_world_dir, require_data_dir
+    from mpm.datasets import manifest, real_world_dir
     from mpm.store import Store
     from similarity.presets import VALIDATED, simulation_request
     from similarity.space import Material
-    from surrogate.rheometer import MATERIALS, fit_herschel_bulkley, read_flow_curve
+    from surrogate.rheometer import fit_herschel_bulkley
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--slips-mm", default="0,0.5,1,2", help="slip lengths in mm, comma-separated")
@@ -40,8 +39,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     args = p.parse_args(argv)
     slips = [float(v) * 1e-3 for v in args.slips_mm.split(",")]
-    curves = {MATERIALS[f.name.split("_")[0]]: read_flow_curve(f)
-              for f in sorted((require_data_dir() / "rheometer").glob("*.csv"))}
+    curves = rheometer_curves()
     rows, store = manifest(), Store(args.store)
     print("| material | slip mm | rheometer fit | Table 1 |")
     print("|---|---:|---|---|")
