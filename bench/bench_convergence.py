@@ -67,10 +67,8 @@ def main(argv=None) -> int:
           f"{'front':>6} {'fine':>6} {'s':>5} {'s fine':>6}")
     rows = {}
     with ProcessPoolExecutor(a.workers, initializer=_init) as pool:
-        results = dict(zip(jobs, pool.map(_one, jobs)))
-    for f in folders:
-        for b in a.slip_m:
-            (sa, la, fa, ta), (sb, lb, fb, tb) = results[(f, a.cell_mm, b)], results[(f, fine, b)]
+        results = pool.map(_one, jobs)  # in job order: each row prints as soon as its pair is done
+        for (f, _, b), (sa, la, fa, ta), (sb, lb, fb, tb) in zip(jobs[::2], results, results):
             ious = np.array([iou(x, y) for x, y in zip(sa, sb)])
             rows.setdefault(b, []).append((ious.mean(), la))
             print(f"{f:<52} {b * 1e3:7.2f} {ious.mean():8.4f} {ious.min():8.4f} {la:7.4f} {lb:9.4f} {fa:6.1f} "

@@ -95,6 +95,9 @@ def main(argv=None) -> int:
     p.add_argument("--slip-mm", default=None, help="passed to virheo estimate: walls slipping by this many mm")
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
     args = p.parse_args(argv)
+    unknown = set(args.only or ()) - set(SLUGS.values())
+    if unknown:
+        p.error(f"unknown material {', '.join(sorted(unknown))}: choose from {', '.join(SLUGS.values())}")
     root = Path(args.root)
     curves = rheometer_curves()
     summary_path = root / "real_estimates.json"

@@ -7,6 +7,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from mpm import batch
 from mpm.store import Store
 from similarity import cma_stage
 from similarity import estimate as E
-from similarity.presets import setup_of
+from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED, setup_of
 from similarity.space import Material, Setup, denormalize, e_rel
 
 SIM = "fake_forward:simulate"
@@ -211,7 +212,8 @@ def test_real_solver_end_to_end_small(tmp_path, monkeypatch):
 
 
 def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
-    """Coarse-to-fine: stages 1..N on the search model, then a warm-started stage at the solver's default."""
+    """Coarse-to-fine: stages 1..N on the search model with sticking walls, then a warm-started stage at the
+    solver's default cells with the footage slip length."""
     from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
 
     footage = E.get_preset("footage")
@@ -230,6 +232,9 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     validated = [r for r in stored if (r.cell_mm, r.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)]
     assert len(validated) == fine.simulations == 7 * 2 + footage.finish_generations * 7 * 2
     assert all((r.cell_mm, r.ppc) == (footage.cell_mm, footage.ppc) for r in stored if r not in validated)
+    # ... with slipping walls, and only those slip
+    assert {r.slip_length_m for r in validated} == {FOOTAGE_SLIP_LENGTH_M}
+    assert {r.slip_length_m for r in stored if r not in validated} == {None}
     # the answer and its loss are the finishing stage's, recomputed from the store at that discretisation
     assert est.material == fine.material and (est.cell_mm, est.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
@@ -240,8 +245,11 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     assert fine.screened[0][:3] == pytest.approx(list(E.normalize(coarse[-1].material.as_array())))
     assert est.loss <= min(r[3] for r in fine.screened)
     d = est.to_dict()
-    assert d["discretisation"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL, "slip_length_m": 0.0}
+    assert d["discretisation"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL,
+                                   "slip_length_m": FOOTAGE_SLIP_LENGTH_M}
     assert d["warnings"] == E.bound_warnings(est.material)
+    # one slip length for all stages (virheo estimate --slip-mm): the finishing stage takes it too
+    assert replace(footage, slip_length_m=0.0).final == replace(VALIDATED, slip_length_m=0.0)
 
 
 @pytest.mark.parametrize("material, expected", [
