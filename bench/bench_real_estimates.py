@@ -94,7 +94,7 @@ def main(argv=None) -> int:
     p.add_argument("--preset", default="footage")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--slip-mm", default=None, help="passed to virheo estimate: walls slipping by this many mm")
+    p.add_argument("--slip-mm", type=float, default=None, help="passed to virheo estimate: walls slipping by this many mm")
     p.add_argument("--finish-slip-mm", type=float, default=None,
                    help="the preset's finishing stage with walls slipping by this many mm (its search as it is)")
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
@@ -104,11 +104,18 @@ def main(argv=None) -> int:
         p.error(f"unknown material {', '.join(sorted(unknown))}: choose from {', '.join(SLUGS.values())}")
     if args.slip_mm is not None and args.finish_slip_mm is not None:
         p.error("--slip-mm (every stage) and --finish-slip-mm (the finishing stage) exclude each other")
-    if args.finish_slip_mm is not None:  # the registered preset, as `virheo estimate` in this process reads it
-        from similarity import presets
+    from similarity import presets
 
-        p0 = presets.get_preset(args.preset)
-        presets.PRESETS[p0.name] = replace(p0, finish=replace(p0.finish, slip_length_m=args.finish_slip_mm * 1e-3))
+    try:
+        preset = presets.get_preset(args.preset)
+    except ValueError as e:
+        p.error(str(e))
+    if args.finish_slip_mm is not None:  # the registered preset, as `virheo estimate` in this process reads it
+        preset = replace(preset, finish=replace(preset.finish, slip_length_m=args.finish_slip_mm * 1e-3))
+        presets.PRESETS[preset.name] = preset
+    if args.slip_mm is not None:
+        preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
+    slip = preset.final.resolved().slip_length_m  # a finished run is reused only if it was estimated with these walls
     root = Path(args.root)
     curves = rheometer_curves()
     summary_path = root / "real_estimates.json"
@@ -120,12 +127,16 @@ def main(argv=None) -> int:
         mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
         folders = [str(Path(real_world_dir()) / r["folder"]) for r in mine]
         out = root / slug
-        done = (out / "result.json").exists() and json.loads((out / "result.json").read_text()).get("preset") == args.preset
+        done = False
+        if (out / "result.json").exists():
+            result = json.loads((out / "result.json").read_text())
+            done = result.get("preset") == args.preset and np.isclose(
+                (result.get("discretisation") or {}).get("slip_length_m", 0.0), slip, rtol=1e-9, atol=0.0)
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),
                            "--workers", str(args.workers), "--quiet",
-                           *(["--slip-mm", args.slip_mm] if args.slip_mm is not None else [])])
+                           *(["--slip-mm", str(args.slip_mm)] if args.slip_mm is not None else [])])
             if code:
                 return code
             results.setdefault(slug, {})["measured"] = {
