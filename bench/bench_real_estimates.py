@@ -105,6 +105,7 @@ def main(argv=None) -> int:
     if args.slip_mm is not None and args.finish_slip_mm is not None:
         p.error("--slip-mm (every stage) and --finish-slip-mm (the finishing stage) exclude each other")
     from similarity import presets
+    from similarity.run_folder import slip_length_of
 
     try:
         preset = presets.get_preset(args.preset)
@@ -130,8 +131,7 @@ def main(argv=None) -> int:
         done = False
         if (out / "result.json").exists():
             result = json.loads((out / "result.json").read_text())
-            done = result.get("preset") == args.preset and np.isclose(
-                (result.get("discretisation") or {}).get("slip_length_m", 0.0), slip, rtol=1e-9, atol=0.0)
+            done = result.get("preset") == args.preset and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),

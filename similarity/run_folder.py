@@ -62,6 +62,12 @@ def read_posterior(folder) -> dict:
     return s
 
 
+def slip_length_of(result: dict) -> float:
+    """The walls' slip length in metres a run was estimated with, from its ``result.json`` (runs that do not
+    say it had sticking walls)."""
+    return float((result.get("discretisation") or {}).get("slip_length_m", 0.0))
+
+
 def load_run(folder, *, store=None, executor=None) -> Run:
     """Read ``folder/result.json`` and rebuild its experiments (folders, or emulated footage from the store)."""
     from mpm import batch
@@ -73,8 +79,7 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     result, estimate = read_result(folder)
     path = folder / "result.json"
     preset = get_preset(result.get("preset", "demo"))
-    # the walls the run was estimated with (runs that do not say it had sticking walls), whatever the preset's now
-    preset = replace(preset, slip_length_m=(result.get("discretisation") or {}).get("slip_length_m", 0.0))
+    preset = replace(preset, slip_length_m=slip_length_of(result))  # its own walls, whatever the preset's now
     simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
     store = store if store is not None else Store(folder / "store")
     setups = [Setup.parse(s) for s in result.get("setups", [])]
