@@ -187,10 +187,13 @@ class _Run:
 
     def _launch(self, steps: int, dt: float) -> None:
         eng = self.eng
-        per_launch = steps if eng.serial else 1
-        with _compile_notice(eng):
-            self._launch_steps(steps // per_launch, per_launch, dt)
-        eng.warm = True
+        if not eng.warm:  # the first launch alone, so that the notice times compiling and not stepping
+            with _compile_notice(eng):
+                self._launch_steps(1, 0 if eng.serial else 1, dt)  # a serial launch of 0 steps only compiles
+            eng.warm = True
+            steps -= 0 if eng.serial else 1
+        if steps > 0:
+            self._launch_steps(1 if eng.serial else steps, steps if eng.serial else 1, dt)
 
     def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
         eng, s = self.eng, self.scene
