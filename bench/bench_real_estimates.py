@@ -1,7 +1,7 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
     python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B | --finish-slip-mm B]
-                                         [--only lotion milk] [--workers 2]
+                                         [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
 okonomiyaki, lotion) runs unless ROOT/<slug>/result.json already holds a finished run (then it is only scored;
@@ -9,7 +9,8 @@ a killed run resumes from its store). Each run is then scored: our estimate and 
 the same forward model as the run's reported loss (mean eq.-3 loss over the two setups), and both flow curves
 against the rheometer (RMS of log10 stress over 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1
 (one-setup) estimate's RMS, the wall time, the CPU time of the estimate and its worker processes, and the
-load average. Prints a markdown table and writes ROOT/real_estimates.json.
+load average. ``--score`` scores more materials the same way as the paper's (e.g. the rheometer's own fit).
+Prints a markdown table and writes ROOT/real_estimates.json.
 """
 from __future__ import annotations
 
@@ -51,8 +52,9 @@ def rheometer_curves() -> dict:
             for f in sorted((require_data_dir() / "rheometer").glob("*.csv"))}
 
 
-def score(out: Path, paper, curve, workers: int) -> dict:
-    """Loss of our estimate and the paper's under the run's final forward model, and their flow-curve RMS."""
+def score(out: Path, paper, curve, workers: int, others=()) -> dict:
+    """Loss of our estimate and the paper's (and of the materials ``others``) under the run's final forward model,
+    and their flow-curve RMS."""
     from mpm import batch
     from similarity.posterior import load_run
     from similarity.presets import simulation_request
@@ -79,6 +81,7 @@ def score(out: Path, paper, curve, workers: int) -> dict:
         "stage1": None if stage1 is None else stage1.to_dict(),
         "simulations": result.get("simulations_run"), "from_store": result.get("results_from_store"),
         "wall_seconds": result.get("wall_seconds"),
+        "others": [{"material": m.to_dict(), "loss": loss(m), "rms": log_stress_rms(m, curve)} for m in others],
     }
 
 
@@ -98,12 +101,20 @@ def main(argv=None) -> int:
     p.add_argument("--finish-slip-mm", type=float, default=None,
                    help="the preset's finishing stage with walls slipping by this many mm (its search as it is)")
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
+    p.add_argument("--score", nargs="*", default=(), metavar="ETA,N,SIGMA_Y",
+                   help="more materials to score like the paper's, under each run's final model (SI units)")
     args = p.parse_args(argv)
     unknown = set(args.only or ()) - set(SLUGS.values())
     if unknown:
         p.error(f"unknown material {', '.join(sorted(unknown))}: choose from {', '.join(SLUGS.values())}")
     if args.slip_mm is not None and args.finish_slip_mm is not None:
         p.error("--slip-mm (every stage) and --finish-slip-mm (the finishing stage) exclude each other")
+    try:
+        others = [Material(*(float(v) for v in m.split(","))) for m in args.score if len(m.split(",")) == 3]
+    except ValueError as e:
+        p.error(f"--score: {e}")
+    if len(others) != len(args.score):
+        p.error("--score takes materials as ETA,N,SIGMA_Y (three numbers in SI units)")
     from similarity import presets
     from similarity.run_folder import slip_length_of
 
@@ -145,7 +156,7 @@ def main(argv=None) -> int:
         r0 = mine[0]
         paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
         _ = [xp.load(f) for f in folders]  # fail early on unreadable footage
-        results.setdefault(slug, {}).update(material=name, **score(out, paper, curves[name], args.workers))
+        results.setdefault(slug, {}).update(material=name, **score(out, paper, curves[name], args.workers, others))
         root.mkdir(parents=True, exist_ok=True)
         summary_path.write_text(json.dumps(results, indent=2))
     f = lambda m: f"{m['eta']:.3g}, {m['n']:.3g}, {m['sigma_y']:.3g}"  # noqa: E731
@@ -159,6 +170,9 @@ def main(argv=None) -> int:
         print(f"| {r['material']} | {' + '.join(r['setups'])} | {f(r['estimate'])} | {f(r['paper'])} | "
               f"{r['loss_ours']:.5f} | {r['loss_paper']:.5f} | {r['rms_stage1']:.3f} | {r['rms_ours']:.3f} | "
               f"{r['rms_paper']:.3f} | {r['simulations']} | {wall / 60:.0f} min |")
+    for slug, r in results.items():
+        for o in r.get("others", ()):
+            print(f"{r['material']}: {f(o['material'])} scores loss {o['loss']:.5f}, RMS {o['rms']:.3f}")
     return 0
 
 
