@@ -1,6 +1,7 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
     python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B | --finish-slip-mm B]
+                                         [--finish-generations G]
                                          [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
@@ -41,6 +42,14 @@ def _material(d: dict):
     from similarity.space import Material
 
     return Material(float(d["eta"]), float(d["n"]), float(d["sigma_y"]))
+
+
+def _finish_generations(result: dict):
+    """Generations of a finished run's finishing stage (0 without one; None if the run does not say)."""
+    stages = result.get("stages")
+    if not stages:
+        return None
+    return stages[-1].get("generations") if stages[-1].get("finish") else 0
 
 
 def rheometer_curves() -> dict:
@@ -100,6 +109,8 @@ def main(argv=None) -> int:
     p.add_argument("--slip-mm", type=float, default=None, help="passed to virheo estimate: walls slipping by this many mm")
     p.add_argument("--finish-slip-mm", type=float, default=None,
                    help="the preset's finishing stage with walls slipping by this many mm (its search as it is)")
+    p.add_argument("--finish-generations", type=int, default=None,
+                   help="the preset's finishing stage with this many CMA-ES generations (its search as it is)")
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
     p.add_argument("--score", nargs="*", default=(), metavar="ETA,N,SIGMA_Y",
                    help="more materials to score like the paper's, under each run's final model (SI units)")
@@ -125,6 +136,11 @@ def main(argv=None) -> int:
     if args.finish_slip_mm is not None:  # the registered preset, as `virheo estimate` in this process reads it
         preset = replace(preset, finish=replace(preset.finish, slip_length_m=args.finish_slip_mm * 1e-3))
         presets.PRESETS[preset.name] = preset
+    if args.finish_generations is not None:
+        if args.finish_generations < 1 or not preset.finish_generations:
+            p.error("--finish-generations needs a positive count and a preset with a finishing stage")
+        preset = replace(preset, finish_generations=args.finish_generations)
+        presets.PRESETS[preset.name] = preset
     if args.slip_mm is not None:
         preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
     slip = preset.final.resolved().slip_length_m  # a finished run is reused only if it was estimated with these walls
@@ -142,7 +158,8 @@ def main(argv=None) -> int:
         done = False
         if (out / "result.json").exists():
             result = json.loads((out / "result.json").read_text())
-            done = result.get("preset") == args.preset and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
+            done = (result.get("preset") == args.preset and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
+                    and _finish_generations(result) in (None, preset.finish_generations))
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),
