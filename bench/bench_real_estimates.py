@@ -120,12 +120,13 @@ def main(argv=None) -> int:
         p.error(f"unknown material {', '.join(sorted(unknown))}: choose from {', '.join(SLUGS.values())}")
     if args.slip_mm is not None and args.finish_slip_mm is not None:
         p.error("--slip-mm (every stage) and --finish-slip-mm (the finishing stage) exclude each other")
+    fields = [m.split(",") for m in args.score]
+    if any(len(f) != 3 for f in fields):
+        p.error("--score takes materials as ETA,N,SIGMA_Y (three numbers in SI units)")
     try:
-        others = [Material(*(float(v) for v in m.split(","))) for m in args.score if len(m.split(",")) == 3]
+        others = [Material(*map(float, f)) for f in fields]
     except ValueError as e:
         p.error(f"--score: {e}")
-    if len(others) != len(args.score):
-        p.error("--score takes materials as ETA,N,SIGMA_Y (three numbers in SI units)")
     from similarity import presets
     from similarity.run_folder import slip_length_of
 

@@ -188,12 +188,14 @@ class _Run:
     def _launch(self, steps: int, dt: float) -> None:
         eng = self.eng
         if not eng.warm:  # the first launch alone, so that the notice times compiling and not stepping
+            first = 0 if eng.serial else 1  # a serial launch of 0 steps only compiles
             with _compile_notice(eng):
-                self._launch_steps(1, 0 if eng.serial else 1, dt)  # a serial launch of 0 steps only compiles
+                self._launch_steps(1, first, dt)
             eng.warm = True
-            steps -= 0 if eng.serial else 1
+            steps -= first
         if steps > 0:
-            self._launch_steps(1 if eng.serial else steps, steps if eng.serial else 1, dt)
+            launches, per_launch = (1, steps) if eng.serial else (steps, 1)
+            self._launch_steps(launches, per_launch, dt)
 
     def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
         eng, s = self.eng, self.scene
