@@ -5,8 +5,8 @@
                                          [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
-okonomiyaki, lotion) runs unless ROOT/<slug>/result.json already holds a finished run (then it is only scored;
-a killed run resumes from its store). Each run is then scored: our estimate and the paper's (Table 1) under
+okonomiyaki, lotion) runs unless ROOT/<slug>/result.json already holds a run finished with the same preset,
+seed, walls and finishing budget (then it is only scored; a killed run resumes from its store). Each run is then scored: our estimate and the paper's (Table 1) under
 the same forward model as the run's reported loss (mean eq.-3 loss over the two setups), and both flow curves
 against the rheometer (RMS of log10 stress over 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1
 (one-setup) estimate's RMS, the wall time, the CPU time of the estimate and its worker processes, and the
@@ -134,14 +134,15 @@ def main(argv=None) -> int:
         preset = presets.get_preset(args.preset)
     except ValueError as e:
         p.error(str(e))
-    if args.finish_slip_mm is not None:  # the registered preset, as `virheo estimate` in this process reads it
+    if (args.finish_slip_mm is not None or args.finish_generations is not None) and not preset.finish_generations:
+        p.error(f"--finish-slip-mm and --finish-generations need a preset with a finishing stage, not {preset.name}")
+    if args.finish_slip_mm is not None:
         preset = replace(preset, finish=replace(preset.finish, slip_length_m=args.finish_slip_mm * 1e-3))
-        presets.PRESETS[preset.name] = preset
     if args.finish_generations is not None:
-        if args.finish_generations < 1 or not preset.finish_generations:
-            p.error("--finish-generations needs a positive count and a preset with a finishing stage")
+        if args.finish_generations < 1:
+            p.error("--finish-generations needs a positive count")
         preset = replace(preset, finish_generations=args.finish_generations)
-        presets.PRESETS[preset.name] = preset
+    presets.PRESETS[preset.name] = preset  # the registered preset, as `virheo estimate` in this process reads it
     if args.slip_mm is not None:
         preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
     slip = preset.final.resolved().slip_length_m  # a finished run is reused only if it was estimated with these walls
@@ -159,7 +160,8 @@ def main(argv=None) -> int:
         done = False
         if (out / "result.json").exists():
             result = json.loads((out / "result.json").read_text())
-            done = (result.get("preset") == args.preset and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
+            done = (result.get("preset") == args.preset and result.get("seed", 0) == args.seed
+                    and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
                     and _finish_generations(result) in (None, preset.finish_generations))
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
