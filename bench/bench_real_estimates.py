@@ -7,11 +7,11 @@
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
 okonomiyaki, lotion) runs unless ROOT/<slug>/result.json already holds a run finished with the same preset,
 seed, walls and finishing budget (then it is only scored; a killed run resumes from its store). Each run is
-then scored: our estimate and the paper's (Table 1) under the same forward model as the run's reported loss (mean eq.-3 loss over the two setups), and both flow curves
-against the rheometer (RMS of log10 stress over 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1
-(one-setup) estimate's RMS, the wall time, the CPU time of the estimate and its worker processes, and the
-load average. ``--score`` scores more materials the same way as the paper's (e.g. the rheometer's own fit).
-Prints a markdown table and writes ROOT/real_estimates.json.
+then scored: our estimate and the paper's (Table 1) under the same forward model as the run's reported loss
+(mean eq.-3 loss over the two setups), and both flow curves against the rheometer (RMS of log10 stress over
+1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1 (one-setup) estimate's RMS, the wall time, the CPU
+time of the estimate and its worker processes, and the load average. ``--score`` scores more materials the same
+way as the paper's (e.g. the rheometer's own fit). Prints a markdown table and writes ROOT/real_estimates.json.
 """
 from __future__ import annotations
 
