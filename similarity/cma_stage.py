@@ -17,7 +17,7 @@ import numpy as np
 from mpm import batch
 from mpm.store import Store, digest
 from similarity.presets import Discretisation, setup_of, simulation_request
-from similarity.space import Material, denormalize, from_log_eta_coordinates, log_eta_coordinates, normalize
+from similarity.space import Material, denormalize, normalize
 
 POPSIZE = 7  # 4 + floor(3 ln 3) for 3 parameters
 RESAMPLE = 3  # rounds of redrawing NaN candidates (failed simulations) within one generation
@@ -26,17 +26,6 @@ STALL_DRAWS = 20 * POPSIZE  # IPOP restart when the run's best loss has not impr
 TOLX = 1e-3  # a run has converged when its steps are below 0.1 % of the box (pycma's default never fires)
 WARM_START_SPACING = 0.03  # minimum distance in [0, 1]^3 between re-scored candidates of the previous stage
 STATE_VERSION = 1  # of StageState; checkpoints of another version belong to another stage id
-LINEAR, LOG_ETA = "linear", "log-eta"  # CMA-ES coordinates: the paper's normalised space, or eta on a log scale
-
-
-def to_search(x, coordinates: str) -> np.ndarray:
-    """Normalised material space -> the stage's CMA-ES coordinates (the same box [0, 1]^3)."""
-    return log_eta_coordinates(x) if coordinates == LOG_ETA else np.asarray(x, float)
-
-
-def from_search(y, coordinates: str) -> np.ndarray:
-    """The stage's CMA-ES coordinates -> normalised material space."""
-    return from_log_eta_coordinates(y) if coordinates == LOG_ETA else np.asarray(y, float)
 
 
 @dataclass
@@ -61,7 +50,6 @@ class Stage:
     screened: list[list[float]] = field(default_factory=list)  # warm start: [x0, x1, x2, loss on these setups]
     finish: bool = False  # the coarse-to-fine finishing stage
     cma_iterations: int = 0  # CMA-ES iterations over all restarts (fewer than ``generations`` once populations grow)
-    coordinates: str = LINEAR  # where CMA-ES searched (LINEAR or LOG_ETA); archive, history and x0 are normalised
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -90,7 +78,6 @@ class StageState:
     archive: list[list[float]] = field(default_factory=list)
     result: Stage | None = None
     version: int = STATE_VERSION
-    coordinates: str = LINEAR  # of ``es``; best_x, archive and history are in the normalised space
 
     def offer(self, x: np.ndarray, loss: float) -> None:
         if loss < self.best_loss:
@@ -121,16 +108,13 @@ class Objective:
         return losses.reshape(len(X), len(self.experiments)).mean(axis=1)
 
 
-def _stage_id(objective: Objective, x0, sigma0, seed, generations, coordinates: str) -> str:
-    key = {
+def _stage_id(objective: Objective, x0, sigma0, seed, generations) -> str:
+    return digest({
         "experiments": objective.exp_ids, "x0": [float(v) for v in x0], "sigma0": float(sigma0), "seed": int(seed),
         "generations": int(generations), "popsize": POPSIZE, "elitist": CMA_ELITIST,
         "restarts": f"ipop/{STALL_DRAWS}/{TOLX}", "state": STATE_VERSION,
         "forward": [r.to_dict() | {"eta": 0, "n": 0, "sigma_y": 0} for r in objective.requests(np.asarray(x0))],
-    }
-    if coordinates != LINEAR:  # stages in the paper's space keep the ids of their checkpoints
-        key["coordinates"] = coordinates
-    return digest(key)[:32]
+    })[:32]
 
 
 def _strategy(x0, sigma0: float, popsize: int, seed: int) -> cma.CMAEvolutionStrategy:
@@ -163,40 +147,35 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
     """Draw, evaluate (redrawing failed candidates) and tell one generation."""
     es = state.es
     left = budget - state.drawn  # the budget's last draws may not fill a generation: sampled, never told
-    Y = [np.asarray(y, float) for y in (es.ask() if left >= es.popsize else es.ask(left))]  # CMA-ES coordinates
-
-    def material_space(ys):
-        return [np.clip(from_search(y, state.coordinates), 0.0, 1.0) for y in ys]
-
-    state.drawn += len(Y)
-    F = objective(material_space(Y))
-    evaluations = len(Y)
+    X = [np.asarray(x, float) for x in (es.ask() if left >= es.popsize else es.ask(left))]
+    state.drawn += len(X)
+    F = objective(X)
+    evaluations = len(X)
     for _ in range(RESAMPLE):
         bad = np.flatnonzero(~np.isfinite(F))
         if bad.size == 0:
             break
         for i in bad:
-            Y[i] = np.asarray(es.ask(1)[0], float)
-        F[bad] = objective(material_space([Y[i] for i in bad]))
+            X[i] = np.asarray(es.ask(1)[0], float)
+        F[bad] = objective([X[i] for i in bad])
         evaluations += bad.size
-    X = material_space(Y)
     finite = np.isfinite(F)
-    state.archive.extend([float(v) for v in x] + [float(f)] for x, f in zip(X, F) if np.isfinite(f))
+    state.archive.extend([float(v) for v in np.clip(x, 0.0, 1.0)] + [float(f)] for x, f in zip(X, F) if np.isfinite(f))
     if finite.any():
         i = int(np.argmin(np.where(finite, F, np.inf)))
         state.run_best = min(state.run_best, float(F[i]))
         state.offer(X[i], F[i])
-    if finite.sum() >= 2 and len(Y) == es.popsize:  # else nothing to learn: the distribution stays as it is
+    if finite.sum() >= 2 and len(X) == es.popsize:  # else nothing to learn: the distribution stays as it is
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # pycma warns when it replaces NaN by the median of the finite values
-            es.tell(Y, [float(f) if np.isfinite(f) else np.nan for f in F])
+            es.tell(X, [float(f) if np.isfinite(f) else np.nan for f in F])
     state.generation += 1
     state.evaluations += evaluations
     state.simulations += evaluations * len(objective.experiments)
     state.history.append({
         "generation": state.generation, "simulations": state.simulations, "best_loss": state.best_loss,
         "best_x": None if state.best_x is None else [float(v) for v in state.best_x],
-        "mean_x": [float(v) for v in from_search(es.mean, state.coordinates)], "sigma": float(es.sigma),
+        "mean_x": [float(v) for v in es.mean], "sigma": float(es.sigma),
         "drawn": state.drawn, "restarts": state.restarts, "run_best": state.run_best,
     })
 
@@ -205,27 +184,23 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
               executor=None, simulator: str = batch.DEFAULT_SIMULATOR,
               progress: Callable[[dict], None] | None = None, stage_index: int = 1,
               screened: Sequence[Sequence[float]] = (), screened_simulations: int | None = None,
-              finish: bool = False, coordinates: str = LINEAR) -> Stage:
+              finish: bool = False) -> Stage:
     """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0``; resumable.
 
-    ``coordinates``: where CMA-ES samples, LINEAR (the normalised space) or LOG_ETA (the same box with eta on a
-    log scale; ``sigma0`` is a step there). ``screened``: rows [x0, x1, x2, loss] already evaluated on these
-    experiments (:func:`warm_start`); they count as the stage's evaluations (``screened_simulations`` new
-    simulations, by default one each) and compete for its best candidate.
+    ``screened``: rows [x0, x1, x2, loss] already evaluated on these experiments (:func:`warm_start`);
+    they count as the stage's evaluations (``screened_simulations`` new simulations, by default one each)
+    and compete for its best candidate.
     """
-    if coordinates not in (LINEAR, LOG_ETA):
-        raise ValueError(f"coordinates must be '{LINEAR}' or '{LOG_ETA}', not '{coordinates}'")
     t0 = time.perf_counter()
     objective = Objective(experiments, model, simulator, store, executor, progress)
-    run_id = _stage_id(objective, x0, sigma0, seed, generations, coordinates)
-    y0 = to_search(x0, coordinates)
+    run_id = _stage_id(objective, x0, sigma0, seed, generations)
     state = store.load_checkpoint(run_id)
     if isinstance(state, StageState) and state.result is not None:
         return state.result
     if not isinstance(state, StageState):
         sims = len(screened) if screened_simulations is None else int(screened_simulations)
-        state = StageState(es=_strategy(y0, sigma0, POPSIZE, seed), evaluations=len(screened), simulations=sims,
-                           screened=[list(r) for r in screened], coordinates=coordinates)
+        state = StageState(es=_strategy(x0, sigma0, POPSIZE, seed), evaluations=len(screened), simulations=sims,
+                           screened=[list(r) for r in screened])
         for r in screened:
             if np.isfinite(r[3]):
                 state.offer(np.asarray(r[:3], float), r[3])
@@ -236,7 +211,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
     budget = generations * POPSIZE  # candidate draws per stage, whatever the restarts' population
     while state.drawn < budget:
         if state.es.stop() or _stalled(state):
-            _restart(state, y0, sigma0, seed)
+            _restart(state, x0, sigma0, seed)
         _generation(state, objective, budget)
         state.wall_seconds += time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -253,7 +228,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
         cell_mm=objective.model.cell_mm, ppc=objective.model.ppc,
         slip_length_m=objective.model.slip_length_m, history=state.history,
         wall_seconds=state.wall_seconds + time.perf_counter() - t0, archive=state.archive, screened=state.screened,
-        finish=finish, cma_iterations=state.generation, coordinates=coordinates,
+        finish=finish, cma_iterations=state.generation,
     )
     store.save_checkpoint(run_id, state)
     return state.result

@@ -2,10 +2,9 @@
 
 Stage k fits the first k setups (:mod:`similarity.cma_stage`), starting from the previous stage's
 re-scored candidates with step ``sigma0 * (2/3)^(k-1)``; a preset with a finishing stage then fits all
-setups again at its final discretisation (coarse-to-fine), searching with eta on a log scale, where the
-curved eta-n valleys of runny materials are straight (:func:`similarity.space.log_eta_coordinates`).
-Presets: :mod:`similarity.presets`; emulated footage: :mod:`similarity.emulation`.  Every simulation goes
-through the store, so a killed run resumes where it stopped.
+setups again at its final discretisation (coarse-to-fine).  Presets: :mod:`similarity.presets`;
+emulated footage: :mod:`similarity.emulation`.  Every simulation goes through the store, so a killed
+run resumes where it stopped.
 """
 from __future__ import annotations
 
@@ -17,7 +16,7 @@ from typing import Callable, Sequence
 
 from mpm import batch
 from mpm.store import Store
-from similarity.cma_stage import LOG_ETA, WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
+from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
 from similarity.presets import PRESETS, Preset, get_preset, setup_of, simulation_request  # noqa: F401
 from similarity.space import LOWER, UPPER, Material, Setup, center, denormalize, e_rel, normalize
@@ -167,8 +166,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
             x0, screened = warm_start(stages[-1], experiments[:n], model=preset.final, **common)
             stage = run_stage(experiments[:n], x0=x0, sigma0=preset.sigma0 * (2.0 / 3.0) ** n, model=preset.final,
                               seed=seed + n, generations=preset.finish_generations, stage_index=n + 1,
-                              screened=screened, screened_simulations=n * len(screened), finish=True,
-                              coordinates=LOG_ETA, **common)
+                              screened=screened, screened_simulations=n * len(screened), finish=True, **common)
             finish_stage(stage, [setup_of(e) for e in experiments[:n]])
     finally:
         if own:

@@ -50,8 +50,7 @@ class Preset:
 
     Stage k of Algorithm 1 runs ``generations`` generations on the model (``cell_mm``, ``ppc``) with step
     ``sigma0 * (2/3)^(k-1)``.  With ``finish_generations`` > 0 a last stage fits all setups again on the
-    ``finish`` discretisation, warm-started from the last stage, so the answer is at that fidelity; it searches with
-    eta on a log scale (:func:`similarity.space.log_eta_coordinates`), where eta-n valleys are straight.
+    ``finish`` discretisation, warm-started from the last stage, so the answer is at that fidelity.
     """
 
     name: str

@@ -11,8 +11,7 @@ import numpy as np
 from mpm.params import ETA_RANGE, N_RANGE, SETUP_RANGE_MM, SIGMA_Y_RANGE, Material, Setup
 
 __all__ = ["ETA_RANGE", "N_RANGE", "SIGMA_Y_RANGE", "SETUP_RANGE_MM", "LOWER", "UPPER", "EXTENT", "Material",
-           "Setup", "normalize", "denormalize", "log_eta_coordinates", "from_log_eta_coordinates", "center",
-           "candidate_setups", "e_rel"]
+           "Setup", "normalize", "denormalize", "center", "candidate_setups", "e_rel"]
 
 # Bounds of the paper's material space (SI), in the order (eta, n, sigma_y).
 LOWER = np.array([ETA_RANGE[0], N_RANGE[0], SIGMA_Y_RANGE[0]])
@@ -28,30 +27,6 @@ def normalize(x) -> np.ndarray:
 def denormalize(u) -> np.ndarray:
     """Normalised material space (..., 3) -> SI parameters (eta, n, sigma_y)."""
     return LOWER + np.asarray(u, dtype=float) * EXTENT
-
-
-LOG_ETA_RANGE = np.log(ETA_RANGE)
-
-
-def log_eta_coordinates(u) -> np.ndarray:
-    """Normalised material space (..., 3) -> the same box [0, 1]^3 with eta on a log scale.
-
-    The viscous stress eta * rate^n is a product, so materials of equal stress at one shear rate lie on a straight
-    line in (log eta, n): the curved loss valleys of runny materials, squeezed against eta's lower bound in the
-    linear space, are straight and wide here.
-    """
-    u = np.array(u, dtype=float)
-    eta = LOWER[0] + u[..., 0] * EXTENT[0]
-    u[..., 0] = (np.log(np.maximum(eta, ETA_RANGE[0])) - LOG_ETA_RANGE[0]) / (LOG_ETA_RANGE[1] - LOG_ETA_RANGE[0])
-    return u
-
-
-def from_log_eta_coordinates(v) -> np.ndarray:
-    """Inverse of :func:`log_eta_coordinates`."""
-    v = np.array(v, dtype=float)
-    eta = np.exp(LOG_ETA_RANGE[0] + v[..., 0] * (LOG_ETA_RANGE[1] - LOG_ETA_RANGE[0]))
-    v[..., 0] = (eta - LOWER[0]) / EXTENT[0]
-    return v
 
 
 def center() -> Material:
