@@ -1,6 +1,6 @@
 """The walls' slip length against real footage: eq.-3 loss of reference materials per slip length.
 
-    python bench/bench_slip_footage.py [--slips-mm 0,0.5,1,2] [--ppc 2] [--only lotion milk]
+    python bench/bench_slip_footage.py [--slips-mm 0,0.5,1,2] [--cell-mm 2] [--ppc 2] [--only lotion milk]
                                        [--score ETA,N,SIGMA_Y ...] [--store DIR] [--workers 2]
 
 For each of the four shared materials with rheometer curves, the mean eq.-3 loss over its two setups at the
@@ -8,7 +8,8 @@ solver's validated discretisation (1.5 mm, one particle per cell per axis) for t
 Herschel-Bulkley fit of its rheometer curve over 1-100 1/s, and the paper's estimate (Table 1). A wall law
 under which both fit the footage better is closer to the flows filmed. 4 simulations per slip length and
 material (64 for the defaults); about 10 minutes on 2 cores (lotion's 70 x 70 mm setup is half of it).
-``--ppc 2`` scores with two particles per cell per axis (6-8 times the cost); ``--score`` adds more materials
+``--cell-mm`` and ``--ppc`` score on other cells (``--ppc 2``: two particles per cell per axis, 6 times the
+cost at 1.5 mm, twice at 2 mm); ``--score`` adds more materials
 (e.g. an estimate) to every row. Prints a markdown table (per setup in brackets).
 """
 from __future__ import annotations
@@ -39,6 +40,7 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="*", default=None, help=f"slugs: {', '.join(SLUGS.values())}")
     p.add_argument("--store", default=str(Path.home() / ".cache/virheometry/slip_footage"))
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--cell-mm", type=float, default=None, help="cell width in mm (default: the solver's)")
     p.add_argument("--ppc", type=int, default=None, help="particles per cell per axis (default: the solver's)")
     p.add_argument("--score", nargs="*", default=[], metavar="ETA,N,SIGMA_Y", help="more materials to score")
     args = p.parse_args(argv)
@@ -48,12 +50,14 @@ def main(argv=None) -> int:
         p.error(f"--score takes ETA,N,SIGMA_Y in SI units: {err}")
     if args.ppc is not None and args.ppc < 1:
         p.error(f"--ppc {args.ppc}: give a whole number >= 1")
+    if args.cell_mm is not None and not args.cell_mm > 0:
+        p.error(f"--cell-mm {args.cell_mm}: give a cell width > 0 in mm")
     slips = [float(v) * 1e-3 for v in args.slips_mm.split(",")]
     curves = rheometer_curves()
     rows, store = manifest(), Store(args.store)
     extra = "".join(f" {m.eta:g}, {m.n:g}, {m.sigma_y:g} |" for m in others)
-    print(f"| material | slip mm | particles per cell per axis | rheometer fit | Table 1 |{extra}")
-    print("|---|---:|---:|---|---|" + "---|" * len(others))
+    print(f"| material | slip mm | cell mm | particles per cell per axis | rheometer fit | Table 1 |{extra}")
+    print("|---|---:|---:|---:|---|---|" + "---|" * len(others))
     with batch.local_executor(args.workers) as ex:
         for name, slug in SLUGS.items():
             if args.only and slug not in args.only:
@@ -64,12 +68,12 @@ def main(argv=None) -> int:
             refs = [fit_herschel_bulkley(curves[name]).material,
                     Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))] + others
             for b in slips:
-                model = dataclasses.replace(VALIDATED, slip_length_m=b, ppc=args.ppc).resolved()
+                model = dataclasses.replace(VALIDATED, slip_length_m=b, cell_mm=args.cell_mm, ppc=args.ppc).resolved()
                 jobs = [(simulation_request(m, e, model), batch.experiment_id(e.frames, e.name), e.frames)
                         for m in refs for e in exps]
                 losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(refs), len(exps))
                 cells = [f"{np.mean(row):.5f} ({', '.join(f'{v:.4f}' for v in row)})" for row in losses]
-                print(f"| {name} | {b * 1e3:g} | {model.ppc} | {' | '.join(cells)} |", flush=True)
+                print(f"| {name} | {b * 1e3:g} | {model.cell_mm:g} | {model.ppc} | {' | '.join(cells)} |", flush=True)
     return 0
 
 
