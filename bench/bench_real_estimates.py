@@ -52,6 +52,19 @@ def _finish_generations(result: dict):
     return stages[-1].get("generations") if stages[-1].get("finish") else 0
 
 
+def parse_materials(parser: argparse.ArgumentParser, specs) -> list:
+    """``--score`` materials given as ETA,N,SIGMA_Y (SI); a malformed or unphysical one ends with a usage error."""
+    from similarity.space import Material
+
+    fields = [m.split(",") for m in specs]
+    if any(len(f) != 3 for f in fields):
+        parser.error("--score takes materials as ETA,N,SIGMA_Y (three numbers in SI units)")
+    try:
+        return [Material(*map(float, f)) for f in fields]
+    except ValueError as e:
+        parser.error(f"--score: {e}")
+
+
 def rheometer_curves() -> dict:
     """Material name -> its rheometer flow curve (``surrogate.rheometer.FlowCurve``) from the shared data."""
     from mpm.datasets import require_data_dir
@@ -120,13 +133,7 @@ def main(argv=None) -> int:
         p.error(f"unknown material {', '.join(sorted(unknown))}: choose from {', '.join(SLUGS.values())}")
     if args.slip_mm is not None and args.finish_slip_mm is not None:
         p.error("--slip-mm (every stage) and --finish-slip-mm (the finishing stage) exclude each other")
-    fields = [m.split(",") for m in args.score]
-    if any(len(f) != 3 for f in fields):
-        p.error("--score takes materials as ETA,N,SIGMA_Y (three numbers in SI units)")
-    try:
-        others = [Material(*map(float, f)) for f in fields]
-    except ValueError as e:
-        p.error(f"--score: {e}")
+    others = parse_materials(p, args.score)
     from similarity import presets
     from similarity.run_folder import slip_length_of
 

@@ -9,8 +9,8 @@ Herschel-Bulkley fit of its rheometer curve over 1-100 1/s, and the paper's esti
 under which both fit the footage better is closer to the flows filmed. 4 simulations per slip length and
 material (64 for the defaults); about 10 minutes on 2 cores (lotion's 70 x 70 mm setup is half of it).
 ``--cell-mm`` and ``--ppc`` score on other cells (``--ppc 2``: two particles per cell per axis, 6 times the
-cost at 1.5 mm, twice at 2 mm); ``--score`` adds more materials
-(e.g. an estimate) to every row. Prints a markdown table (per setup in brackets).
+cost at 1.5 mm, twice at 2 mm); ``--score`` adds more materials (e.g. an estimate) to every row. Prints a
+markdown table (per setup in brackets).
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
 
-from bench_real_estimates import SLUGS, rheometer_curves  # noqa: E402  (bench/ is this script's folder)
+from bench_real_estimates import SLUGS, parse_materials, rheometer_curves  # noqa: E402  (bench/ is this script's folder)
 
 
 def main(argv=None) -> int:
@@ -44,10 +44,7 @@ def main(argv=None) -> int:
     p.add_argument("--ppc", type=int, default=None, help="particles per cell per axis (default: the solver's)")
     p.add_argument("--score", nargs="*", default=[], metavar="ETA,N,SIGMA_Y", help="more materials to score")
     args = p.parse_args(argv)
-    try:
-        others = [Material(*(float(v) for v in spec.split(","))) for spec in args.score]
-    except (TypeError, ValueError) as err:
-        p.error(f"--score takes ETA,N,SIGMA_Y in SI units: {err}")
+    others = parse_materials(p, args.score)
     if args.ppc is not None and args.ppc < 1:
         p.error(f"--ppc {args.ppc}: give a whole number >= 1")
     if args.cell_mm is not None and not args.cell_mm > 0:
@@ -65,8 +62,8 @@ def main(argv=None) -> int:
             mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
             exps = [xp.load(str(Path(real_world_dir()) / r["folder"])) for r in mine]
             r0 = mine[0]
-            refs = [fit_herschel_bulkley(curves[name]).material,
-                    Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))] + others
+            paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
+            refs = [fit_herschel_bulkley(curves[name]).material, paper, *others]
             for b in slips:
                 model = dataclasses.replace(VALIDATED, slip_length_m=b, cell_mm=args.cell_mm, ppc=args.ppc).resolved()
                 jobs = [(simulation_request(m, e, model), batch.experiment_id(e.frames, e.name), e.frames)
