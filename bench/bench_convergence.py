@@ -7,6 +7,7 @@ loss of both against the footage. One simulation per process, ``--workers`` at a
     python bench/bench_convergence.py                                    # the 4 thin-film-prone ones below
     python bench/bench_convergence.py --experiments all --slip-m 0 0.002  # all 14 (hours on 2 cores)
     python bench/bench_convergence.py --experiments ref_Lotion_2.5_5.1_1 --cell-mm 1.5 --fine-mm 0.75
+    python bench/bench_convergence.py --experiments EXP --slip-m 0.001 --cell-mm 2 --ppc 2  # two particles per axis
 """
 import argparse
 import os
@@ -25,7 +26,7 @@ DEFAULT_EXPERIMENTS = ("ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2", "re
 
 
 def _one(job):
-    folder, cell, slip = job
+    folder, cell, slip, ppc = job
     from mpm import solver
     from mpm.datasets import manifest, real_world_dir
     from mpm.experiment import load
@@ -36,7 +37,8 @@ def _one(job):
     exp = load(real_world_dir() / folder)
     t = time.perf_counter()
     sim = solver.simulate(mat, NS(width_mm=exp.width_mm, height_mm=exp.height_mm), density=exp.density,
-                          cell_mm=cell, camera=exp.camera, depth_mm=exp.depth_mm, slip_length_m=slip)
+                          cell_mm=cell, camera=exp.camera, depth_mm=exp.depth_mm, slip_length_m=slip,
+                          ppc=ppc)
     return sim.silhouettes, float(video_loss(sim.silhouettes, exp.frames)), sim.front_m[-1] * 1e3, \
         time.perf_counter() - t
 
@@ -56,19 +58,22 @@ def main(argv=None) -> int:
     ap.add_argument("--slip-m", type=float, nargs="+", default=[0.0, 0.002], help="slip lengths in metres")
     ap.add_argument("--cell-mm", type=float, default=DEFAULT_CELL_MM)
     ap.add_argument("--fine-mm", type=float, default=None, help="default: cell / 2")
+    ap.add_argument("--ppc", type=int, default=1, help="particles per cell per axis, both runs")
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args(argv)
+    if a.ppc < 1:
+        ap.error(f"--ppc {a.ppc}: give a whole number >= 1")
     folders = [r["folder"] for r in manifest()] if a.experiments == ["all"] else a.experiments
     fine = a.fine_mm or a.cell_mm / 2
-    jobs = [(f, c, b) for f in folders for b in a.slip_m for c in (a.cell_mm, fine)]
-    print(f"# IoU of cell {a.cell_mm:g} mm vs {fine:g} mm (1 particle per cell per axis), Table-1 parameters; "
+    jobs = [(f, c, b, a.ppc) for f in folders for b in a.slip_m for c in (a.cell_mm, fine)]
+    print(f"# IoU of cell {a.cell_mm:g} mm vs {fine:g} mm ({a.ppc} particle(s) per cell per axis), Table-1 parameters; "
           f"loss = video loss against the footage")
     print(f"{'experiment':<52} {'slip mm':>7} {'mean IoU':>8} {'min IoU':>8} {'loss':>7} {'loss fine':>9} "
           f"{'front':>6} {'fine':>6} {'s':>5} {'s fine':>6}")
     rows = {}
     with ProcessPoolExecutor(a.workers, initializer=_init) as pool:
         results = pool.map(_one, jobs)  # in job order: each row prints as soon as its pair is done
-        for (f, _, b), (sa, la, fa, ta), (sb, lb, fb, tb) in zip(jobs[::2], results, results):
+        for (f, _, b, _), (sa, la, fa, ta), (sb, lb, fb, tb) in zip(jobs[::2], results, results):
             ious = np.array([iou(x, y) for x, y in zip(sa, sb)])
             rows.setdefault(b, []).append((ious.mean(), la))
             print(f"{f:<52} {b * 1e3:7.2f} {ious.mean():8.4f} {ious.min():8.4f} {la:7.4f} {lb:9.4f} {fa:6.1f} "
