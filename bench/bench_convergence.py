@@ -36,9 +36,12 @@ def _one(job):
     mat = NS(eta=float(row["paper_eta_Pa_s_n"]), n=float(row["paper_n"]), sigma_y=float(row["paper_sigma_y_Pa"]))
     exp = load(real_world_dir() / folder)
     t = time.perf_counter()
-    sim = solver.simulate(mat, NS(width_mm=exp.width_mm, height_mm=exp.height_mm), density=exp.density,
-                          cell_mm=cell, camera=exp.camera, depth_mm=exp.depth_mm, slip_length_m=slip,
-                          ppc=ppc)
+    try:
+        sim = solver.simulate(mat, NS(width_mm=exp.width_mm, height_mm=exp.height_mm), density=exp.density,
+                              cell_mm=cell, camera=exp.camera, depth_mm=exp.depth_mm, slip_length_m=slip,
+                              ppc=ppc)
+    except (ValueError, solver.SimulationError) as exc:  # too many particles, or the run blew up
+        return f"{cell:g} mm: {exc}"
     return sim.silhouettes, float(video_loss(sim.silhouettes, exp.frames)), sim.front_m[-1] * 1e3, \
         time.perf_counter() - t
 
@@ -73,7 +76,12 @@ def main(argv=None) -> int:
     rows = {}
     with ProcessPoolExecutor(a.workers, initializer=_init) as pool:
         results = pool.map(_one, jobs)  # in job order: each row prints as soon as its pair is done
-        for (f, _, b, _), (sa, la, fa, ta), (sb, lb, fb, tb) in zip(jobs[::2], results, results):
+        for (f, _, b, _), ra, rb in zip(jobs[::2], results, results):
+            failed = [r for r in (ra, rb) if isinstance(r, str)]
+            if failed:
+                print(f"{f:<52} {b * 1e3:7.2f} failed: {'; '.join(failed)}", flush=True)
+                continue
+            (sa, la, fa, ta), (sb, lb, fb, tb) = ra, rb
             ious = np.array([iou(x, y) for x, y in zip(sa, sb)])
             rows.setdefault(b, []).append((ious.mean(), la))
             print(f"{f:<52} {b * 1e3:7.2f} {ious.mean():8.4f} {ious.min():8.4f} {la:7.4f} {lb:9.4f} {fa:6.1f} "

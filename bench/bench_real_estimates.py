@@ -1,7 +1,7 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
     python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B | --finish-slip-mm B]
-                                         [--finish-generations G]
+                                         [--finish-generations G] [--finish-cell-mm C --finish-ppc P]
                                          [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
@@ -12,6 +12,8 @@ then scored: our estimate and the paper's (Table 1) under the same forward model
 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1 (one-setup) estimate's RMS, the wall time, the CPU
 time of the estimate and its worker processes, and the load average. ``--score`` scores more materials the same
 way as the paper's (e.g. the rheometer's own fit). Prints a markdown table and writes ROOT/real_estimates.json.
+``--finish-cell-mm 1.26 --finish-ppc 2 --finish-slip-mm 0`` finishes at the paper's discretisation (a GPU job:
+``VIRHEO_ARCH=cuda``).
 """
 from __future__ import annotations
 
@@ -42,6 +44,12 @@ def _material(d: dict):
     from similarity.space import Material
 
     return Material(float(d["eta"]), float(d["n"]), float(d["sigma_y"]))
+
+
+def _same_cells(result: dict, final) -> bool:
+    """Whether a run's reported loss was computed on ``final``'s cells (runs that do not say: the default's)."""
+    d = result.get("discretisation") or {}
+    return (d.get("cell_mm") is None or np.isclose(d["cell_mm"], final.cell_mm)) and d.get("ppc", final.ppc) == final.ppc
 
 
 def _finish_generations(result: dict):
@@ -124,6 +132,9 @@ def main(argv=None) -> int:
                    help="the preset's finishing stage with walls slipping by this many mm (its search as it is)")
     p.add_argument("--finish-generations", type=int, default=None,
                    help="the preset's finishing stage with this many CMA-ES generations (its search as it is)")
+    p.add_argument("--finish-cell-mm", type=float, default=None, help="the preset's finishing stage on these cells")
+    p.add_argument("--finish-ppc", type=int, default=None,
+                   help="the preset's finishing stage with this many particles per cell per axis")
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
     p.add_argument("--score", nargs="*", default=(), metavar="ETA,N,SIGMA_Y",
                    help="more materials to score like the paper's, under each run's final model (SI units)")
@@ -141,10 +152,17 @@ def main(argv=None) -> int:
         preset = presets.get_preset(args.preset)
     except ValueError as e:
         p.error(str(e))
-    if (args.finish_slip_mm is not None or args.finish_generations is not None) and not preset.finish_generations:
-        p.error(f"--finish-slip-mm and --finish-generations need a preset with a finishing stage, not {preset.name}")
+    finish = {"slip_length_m": args.finish_slip_mm, "cell_mm": args.finish_cell_mm, "ppc": args.finish_ppc}
+    if (any(v is not None for v in finish.values()) or args.finish_generations is not None) \
+            and not preset.finish_generations:
+        p.error(f"--finish-* options need a preset with a finishing stage, not {preset.name}")
+    if args.finish_cell_mm is not None and not args.finish_cell_mm > 0:
+        p.error(f"--finish-cell-mm {args.finish_cell_mm}: give a cell width > 0 in mm")
+    if args.finish_ppc is not None and args.finish_ppc < 1:
+        p.error(f"--finish-ppc {args.finish_ppc}: give a whole number >= 1")
     if args.finish_slip_mm is not None:
-        preset = replace(preset, finish=replace(preset.finish, slip_length_m=args.finish_slip_mm * 1e-3))
+        finish["slip_length_m"] = args.finish_slip_mm * 1e-3
+    preset = replace(preset, finish=replace(preset.finish, **{k: v for k, v in finish.items() if v is not None}))
     if args.finish_generations is not None:
         if args.finish_generations < 1:
             p.error("--finish-generations needs a positive count")
@@ -152,7 +170,8 @@ def main(argv=None) -> int:
     presets.PRESETS[preset.name] = preset  # the registered preset, as `virheo estimate` in this process reads it
     if args.slip_mm is not None:
         preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
-    slip = preset.final.resolved().slip_length_m  # a finished run is reused only if it was estimated with these walls
+    final = preset.final.resolved()  # a finished run is reused only if it was estimated with this model
+    slip = final.slip_length_m
     root = Path(args.root)
     curves = rheometer_curves()
     summary_path = root / "real_estimates.json"
@@ -169,6 +188,7 @@ def main(argv=None) -> int:
             result = json.loads((out / "result.json").read_text())
             done = (result.get("preset") == args.preset and result.get("seed", 0) == args.seed
                     and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
+                    and _same_cells(result, final)
                     and _finish_generations(result) in (None, preset.finish_generations))
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
