@@ -141,9 +141,8 @@ class InlineExecutor(Executor):
         return fut
 
 
-def _init_worker(threads: int) -> None:
-    os.environ.setdefault("VIRHEO_THREADS", str(threads))
-    os.environ.setdefault("OMP_NUM_THREADS", str(threads))
+def _init_worker() -> None:
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # one simulation per core
     # results travel back through the executor: what a worker prints (Taichi's start-up lines) is noise
     sys.stdout = open(os.devnull, "w")
 
@@ -154,12 +153,9 @@ def local_executor(workers: int | None = None) -> Executor:
         raise ValueError(f"workers={workers} must be >= 0 (0: in this process)")
     if workers == 0:
         return InlineExecutor()
-    cores = os.cpu_count() or 1
-    workers = int(workers or cores)
-    threads = max(1, cores // workers)
     return ProcessPoolExecutor(
-        max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-        initializer=_init_worker, initargs=(threads,),
+        max_workers=int(workers or os.cpu_count() or 1), mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
     )
 
 

@@ -1,7 +1,7 @@
 """The Taichi runtime, set up in one place: architecture, CPU threads and default float precision.
 
 ``$VIRHEO_ARCH`` = auto (default: CUDA when available, else CPU) | cpu | cuda; ``$VIRHEO_THREADS``: CPU
-threads (default: all cores; use 1 per process when running several processes). Taichi holds one default
+threads (default 1: more threads made every measured model slower, docs/performance.md). Taichi holds one default
 float per process, so switching precision re-initialises it (and recompiles): keep one per process.
 Importing this module does not initialise Taichi.
 """
@@ -33,8 +33,8 @@ def arch():
 
 
 def threads() -> int:
-    """CPU threads for Taichi: ``$VIRHEO_THREADS``, default all cores."""
-    return max(1, int(os.environ.get("VIRHEO_THREADS", os.cpu_count() or 1)))
+    """CPU threads for Taichi: ``$VIRHEO_THREADS``, default 1 (one thread runs each quarter frame in one launch)."""
+    return max(1, int(os.environ.get("VIRHEO_THREADS", 1)))
 
 
 def float_type(precision: str):
