@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     from mpm.datasets import manifest, real_world_dir
     from mpm.loss import iou, video_loss
     from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED, simulation_request
-    from similarity.space import N_RANGE, Material
+    from similarity.space import Material
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--experiment", default="ref_JapaneseThickenedWorcestershireSauce_4.0_2.1_1")
@@ -131,7 +131,7 @@ def main(argv=None) -> int:
     if a.population > 0 and a.workers:
         rng = np.random.default_rng(0)
         jitter = np.exp(0.15 * rng.standard_normal((a.population, 3)))
-        pop = [Material(mat.eta * j[0], min(mat.n * j[1], N_RANGE[1]), mat.sigma_y * j[2]) for j in jitter]
+        pop = [Material(mat.eta * j[0], min(mat.n * j[1], 1.5), mat.sigma_y * j[2]) for j in jitter]
         model = replace(VALIDATED, slip_length_m=a.slip_m)
         reqs = [simulation_request(p, exp, model) for p in pop]
         base = None
