@@ -33,8 +33,13 @@ def arch():
 
 
 def threads() -> int:
-    """CPU threads for Taichi: ``$VIRHEO_THREADS``, default 1 (one thread runs each quarter frame in one launch)."""
-    return max(1, int(os.environ.get("VIRHEO_THREADS", 1)))
+    """CPU threads for Taichi: ``$VIRHEO_THREADS``, default 1 (one thread runs each quarter frame in one launch);
+    ValueError unless a whole number."""
+    value = os.environ.get("VIRHEO_THREADS", "1")
+    try:
+        return max(1, int(value))
+    except ValueError:
+        raise ValueError(f"VIRHEO_THREADS must be a whole number of threads, got {value!r}") from None
 
 
 def float_type(precision: str):
