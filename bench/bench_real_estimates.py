@@ -152,7 +152,8 @@ def main(argv=None) -> int:
         preset = presets.get_preset(args.preset)
     except ValueError as e:
         p.error(str(e))
-    finish = {"slip_length_m": args.finish_slip_mm, "cell_mm": args.finish_cell_mm, "ppc": args.finish_ppc}
+    finish = {"slip_length_m": None if args.finish_slip_mm is None else args.finish_slip_mm * 1e-3,
+              "cell_mm": args.finish_cell_mm, "ppc": args.finish_ppc}
     if (any(v is not None for v in finish.values()) or args.finish_generations is not None) \
             and not preset.finish_generations:
         p.error(f"--finish-* options need a preset with a finishing stage, not {preset.name}")
@@ -160,8 +161,6 @@ def main(argv=None) -> int:
         p.error(f"--finish-cell-mm {args.finish_cell_mm}: give a cell width > 0 in mm")
     if args.finish_ppc is not None and args.finish_ppc < 1:
         p.error(f"--finish-ppc {args.finish_ppc}: give a whole number >= 1")
-    if args.finish_slip_mm is not None:
-        finish["slip_length_m"] = args.finish_slip_mm * 1e-3
     preset = replace(preset, finish=replace(preset.finish, **{k: v for k, v in finish.items() if v is not None}))
     if args.finish_generations is not None:
         if args.finish_generations < 1:
