@@ -30,7 +30,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     D = dim
     nd = ti.types.ndarray()
     serial = tasks == 1 and not atomic
-    ugimp, window, lead_weights, column, LEADS = build_stencil(D)
+    stencil_base, ugimp, window, lead_weights, column, LEADS = build_stencil(D)
     L = D - 1  # the last axis: unit stride in the grid, innermost in the stencil loops
     load_boxes, in_box, zcoord, navier_slip = build_walls(D, window)
 
@@ -70,8 +70,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         With u = m v - m C fx (fx: particle position from stencil node 0, cells) and the factors of
         ``lead_weights``, the momentum is w[L, k] (P + k Q) + dw[L, k] R with, per ``lead``,
         P = wl (u + sum_a lead[a] m C[:, a]) + sum_a gl[a] S[:, a], Q = wl m C[:, L], R = wl S[:, L]."""
-        X = x[p] * inv_dx - origin
-        base, fx, w, dw = ugimp(X, lh)
+        base, fx, w, dw = ugimp(x[p], inv_dx, origin, lh)
         tau = kirchhoff_stress(be[p], iso[p], kappa, mu)
         S = (-dt * vol * inv_dx) * block(tau)  # force -V_p tau grad w (grad in cells)
         mC = (mp * dx) * C[p]
@@ -108,8 +107,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                      origin, stride, dt, inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template(),
                      slipping: ti.template()):
         xp = x[p]
-        X = xp * inv_dx - origin
-        base, fx, w, dw = ugimp(X, lh)
+        base, fx, w, dw = ugimp(xp, inv_dx, origin, lh)
         vp = ti.Vector.zero(float, D)
         B = ti.Matrix.zero(float, D, D)
         node0 = base.dot(stride)
@@ -283,7 +281,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                                           eta, nn, sy, zmid, lh, yue, slipping)
                     if (xn != xn).any():
                         win[ERROR] = 1
-                    base = ti.floor(xn * inv_dx - lh, ti.i32)
+                    base = stencil_base(xn, inv_dx, lh)
                     for a in ti.static(range(D)):
                         ti.atomic_min(acc[0, a], base[a])
                         ti.atomic_max(acc[0, 3 + a], base[a])
@@ -301,7 +299,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                                               mu, eta, nn, sy, zmid, lh, yue, slipping)
                         if (xn != xn).any():
                             bad = 1
-                        base = ti.floor(xn * inv_dx - lh, ti.i32)
+                        base = stencil_base(xn, inv_dx, lh)
                         lo = ti.min(lo, base)
                         hi = ti.max(hi, base)
                         vmax2 = ti.max(vmax2, vp.norm_sqr())
@@ -334,11 +332,12 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
 
     @ti.kernel
     def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, lh: float):
+        inv_dx = 1.0 / dx
         for t in range(tasks):
             lo = ti.Vector([2147483647] * D)
             hi = ti.Vector([-2147483647] * D)
             for p in range(t * n // tasks, (t + 1) * n // tasks):
-                base = ti.floor(x[p] / dx - lh, ti.i32)
+                base = stencil_base(x[p], inv_dx, lh)
                 lo = ti.min(lo, base)
                 hi = ti.max(hi, base)
             for a in ti.static(range(D)):

@@ -13,21 +13,33 @@ OX, NX, COUNT, OVERFLOW, ERROR, DONE, NEED = 0, 3, 6, 7, 8, 9, 10
 
 
 def build_stencil(D: int):
-    """(ugimp, window, lead_weights, column, LEADS) for dim ``D``; the stencil loops run over the
+    """(stencil_base, ugimp, window, lead_weights, column, LEADS) for dim ``D``; the stencil loops run over the
     leading axes (``LEADS``: the 3^(D-1) node offsets of all axes but the last), then along the last axis."""
 
     @ti.func
-    def ugimp(X, l):
+    def stencil_base(x, inv_dx, l):
+        """Node 0 of a particle's stencil (absolute cell indices): floor(x / dx - l).
+
+        The window's bounding box and the transfers both take it from here, with the same operands, so that
+        they round alike: a particle whose x / dx - l lies on an integer (the initial lattices put many there)
+        must not land one node outside the window it was given."""
+        return ti.floor(x * inv_dx - l, ti.i32)
+
+    @ti.func
+    def ugimp(x, inv_dx, origin, l):
         """uGIMP weights per axis for stencil nodes base + 0..2.
 
-        X: position in cell units relative to the window origin, l = l_p / dx <= 1/2 (1/4 with two
-        particles per cell). Returns base, fx = X - base in [l, 1 + l), the normalised 1D factors
+        x: position (m), inv_dx = 1 / dx, origin: the window origin (cells), l = l_p / dx <= 1/2 (1/4 with two
+        particles per cell). Returns base (relative to the window origin), fx in [l, 1 + l) (the position in
+        cells from stencil node 0; rounding may put it a hair outside, where the weights below extend
+        continuously), the normalised 1D factors
         N = S / (2 l_p) (they sum to 1) and dN/dx_p in cell units. With r = fx - o = (x_p - x_i)/dx:
         N = 1 - (l^2 + r^2) / (2 l) for |r| < l, 1 - |r| for |r| < 1 - l, (1 + l - |r|)^2 / (4 l) for
         |r| < 1 + l, else 0; node 0 sees r in [l, 1 + l), node 1 [l - 1, l), node 2 [l - 2, l - 1).
         """
-        base = ti.floor(X - l, ti.i32)
-        fx = X - base
+        node0 = stencil_base(x, inv_dx, l)
+        base = node0 - origin
+        fx = x * inv_dx - node0
         q = 0.25 / l
         w = ti.Matrix.zero(float, D, 3)
         dw = ti.Matrix.zero(float, D, 3)
@@ -81,4 +93,4 @@ def build_stencil(D: int):
     def column(m, a: ti.template()):
         return ti.Vector([m[r, a] for r in ti.static(range(D))])
 
-    return ugimp, window, lead_weights, column, LEADS
+    return stencil_base, ugimp, window, lead_weights, column, LEADS

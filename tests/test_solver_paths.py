@@ -47,3 +47,32 @@ def test_paths_agree_on_the_flow(paths, other):
     a, b = np.array(ref["last"]), np.array(alt["last"])
     assert a.shape == b.shape
     assert np.abs(a - b).max() < 1e-4
+
+
+BOUNDS_SCRIPT = """
+import taichi as ti
+from types import SimpleNamespace as NS
+from mpm import solver
+init = ti.init
+ti.init = lambda *a, **k: init(*a, **{**k, "debug": True, "check_out_of_bound": True, "offline_cache": False})
+class FirstFrame(Exception):
+    pass
+def stop(done, total):
+    raise FirstFrame
+try:
+    solver.simulate(NS(eta=0.55, n=0.81, sigma_y=1.95), NS(width_mm=21, height_mm=40), density=1200.0, dim=2,
+                    cell_mm=0.75, ppc=4, slip_length_m=0.0, progress=stop)
+except FirstFrame:
+    print("first frame inside the grid")
+"""
+
+
+def test_every_stencil_lies_inside_the_grid_window():
+    """Under Taichi's bounds checks, a lattice whose particles sit where x / dx - l_p / dx is an integer (here
+    0.75 mm cells with 4 particles per axis) scatters into and gathers from the grid window only. The window's
+    bounding box and the transfers once rounded that expression differently, which wrote one node row in
+    front of the grid (a segmentation fault, or silently corrupted memory)."""
+    proc = subprocess.run([sys.executable, "-c", BOUNDS_SCRIPT], capture_output=True, text=True, cwd=REPO,
+                          timeout=600, env={**os.environ, "VIRHEO_ARCH": "cpu", "VIRHEO_THREADS": "1"})
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "first frame inside the grid" in proc.stdout
