@@ -69,9 +69,9 @@ except FirstFrame:
 
 def test_every_stencil_lies_inside_the_grid_window():
     """Under Taichi's bounds checks, a lattice whose particles sit where x / dx - l_p / dx is an integer (here
-    0.75 mm cells with 4 particles per axis) scatters into and gathers from the grid window only. The window's
-    bounding box and the transfers once rounded that expression differently, which wrote one node row in
-    front of the grid (a segmentation fault, or silently corrupted memory)."""
+    0.75 mm cells with 4 particles per axis) scatters into and gathers from the grid window only. Should the
+    window's bounding box and the transfers round that expression differently, a transfer writes one node row
+    in front of the grid (a segmentation fault, or silently corrupted memory)."""
     proc = subprocess.run([sys.executable, "-c", BOUNDS_SCRIPT], capture_output=True, text=True, cwd=REPO,
                           timeout=600, env={**os.environ, "VIRHEO_ARCH": "cpu", "VIRHEO_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-2000:]
