@@ -2,6 +2,7 @@
 
     python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B | --finish-slip-mm B]
                                          [--finish-generations G] [--finish-cell-mm C --finish-ppc P]
+                                         [--search-cell-mm C --search-ppc P]
                                          [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
@@ -13,7 +14,7 @@ then scored: our estimate and the paper's (Table 1) under the same forward model
 time of the estimate and its worker processes, and the load average. ``--score`` scores more materials the same
 way as the paper's (e.g. the rheometer's own fit). Prints a markdown table and writes ROOT/real_estimates.json.
 ``--finish-cell-mm 1.26 --finish-ppc 2 --finish-slip-mm 0`` finishes at the paper's discretisation (a GPU job:
-``VIRHEO_ARCH=cuda``).
+``VIRHEO_ARCH=cuda``); ``--search-cell-mm``/``--search-ppc`` change the search stages' cells instead.
 """
 from __future__ import annotations
 
@@ -50,6 +51,14 @@ def _same_cells(result: dict, final) -> bool:
     """Whether a run's reported loss was computed on ``final``'s cells (runs that do not say: the default's)."""
     d = result.get("discretisation") or {}
     return (d.get("cell_mm") is None or np.isclose(d["cell_mm"], final.cell_mm)) and d.get("ppc", final.ppc) == final.ppc
+
+
+def _same_search(result: dict, preset) -> bool:
+    """Whether a run's first stage searched on ``preset``'s cells (runs that do not say: assumed so)."""
+    stages = result.get("stages") or [{}]
+    search = preset.search.resolved()
+    cell, ppc = stages[0].get("cell_mm"), stages[0].get("ppc")
+    return (cell is None or np.isclose(cell, search.cell_mm)) and (ppc is None or ppc == search.ppc)
 
 
 def _finish_generations(result: dict):
@@ -135,6 +144,9 @@ def main(argv=None) -> int:
     p.add_argument("--finish-cell-mm", type=float, default=None, help="the preset's finishing stage on these cells")
     p.add_argument("--finish-ppc", type=int, default=None,
                    help="the preset's finishing stage with this many particles per cell per axis")
+    p.add_argument("--search-cell-mm", type=float, default=None, help="the preset's search stages on these cells")
+    p.add_argument("--search-ppc", type=int, default=None,
+                   help="the preset's search stages with this many particles per cell per axis")
     p.add_argument("--only", nargs="*", default=None, help=f"slugs to run: {', '.join(SLUGS.values())}")
     p.add_argument("--score", nargs="*", default=(), metavar="ETA,N,SIGMA_Y",
                    help="more materials to score like the paper's, under each run's final model (SI units)")
@@ -157,11 +169,15 @@ def main(argv=None) -> int:
     if (any(v is not None for v in finish.values()) or args.finish_generations is not None) \
             and not preset.finish_generations:
         p.error(f"--finish-* options need a preset with a finishing stage, not {preset.name}")
-    if args.finish_cell_mm is not None and not args.finish_cell_mm > 0:
-        p.error(f"--finish-cell-mm {args.finish_cell_mm}: give a cell width > 0 in mm")
-    if args.finish_ppc is not None and args.finish_ppc < 1:
-        p.error(f"--finish-ppc {args.finish_ppc}: give a whole number >= 1")
+    for opt, cells, ppc in (("finish", args.finish_cell_mm, args.finish_ppc),
+                            ("search", args.search_cell_mm, args.search_ppc)):
+        if cells is not None and not cells > 0:
+            p.error(f"--{opt}-cell-mm {cells}: give a cell width > 0 in mm")
+        if ppc is not None and ppc < 1:
+            p.error(f"--{opt}-ppc {ppc}: give a whole number >= 1")
     preset = replace(preset, finish=replace(preset.finish, **{k: v for k, v in finish.items() if v is not None}))
+    search = {"cell_mm": args.search_cell_mm, "ppc": args.search_ppc}
+    preset = replace(preset, **{k: v for k, v in search.items() if v is not None})
     if args.finish_generations is not None:
         if args.finish_generations < 1:
             p.error("--finish-generations needs a positive count")
@@ -187,7 +203,7 @@ def main(argv=None) -> int:
             result = json.loads((out / "result.json").read_text())
             done = (result.get("preset") == args.preset and result.get("seed", 0) == args.seed
                     and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
-                    and _same_cells(result, final)
+                    and _same_cells(result, final) and _same_search(result, preset)
                     and _finish_generations(result) in (None, preset.finish_generations))
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
