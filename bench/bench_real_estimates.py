@@ -47,18 +47,10 @@ def _material(d: dict):
     return Material(float(d["eta"]), float(d["n"]), float(d["sigma_y"]))
 
 
-def _same_cells(result: dict, final) -> bool:
-    """Whether a run's reported loss was computed on ``final``'s cells (runs that do not say: the default's)."""
-    d = result.get("discretisation") or {}
-    return (d.get("cell_mm") is None or np.isclose(d["cell_mm"], final.cell_mm)) and d.get("ppc", final.ppc) == final.ppc
-
-
-def _same_search(result: dict, preset) -> bool:
-    """Whether a run's first stage searched on ``preset``'s cells (runs that do not say: assumed so)."""
-    stages = result.get("stages") or [{}]
-    search = preset.search.resolved()
-    cell, ppc = stages[0].get("cell_mm"), stages[0].get("ppc")
-    return (cell is None or np.isclose(cell, search.cell_mm)) and (ppc is None or ppc == search.ppc)
+def _on_cells(d: dict, model) -> bool:
+    """Whether ``d`` (a run's ``discretisation`` or one of its stages) names ``model``'s cells and particles
+    (where it does not say: assumed so)."""
+    return (d.get("cell_mm") is None or np.isclose(d["cell_mm"], model.cell_mm)) and d.get("ppc", model.ppc) == model.ppc
 
 
 def _finish_generations(result: dict):
@@ -203,7 +195,8 @@ def main(argv=None) -> int:
             result = json.loads((out / "result.json").read_text())
             done = (result.get("preset") == args.preset and result.get("seed", 0) == args.seed
                     and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
-                    and _same_cells(result, final) and _same_search(result, preset)
+                    and _on_cells(result.get("discretisation") or {}, final)
+                    and _on_cells((result.get("stages") or [{}])[0], preset.search.resolved())
                     and _finish_generations(result) in (None, preset.finish_generations))
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
