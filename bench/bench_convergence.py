@@ -66,7 +66,11 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.ppc < 1:
         ap.error(f"--ppc {a.ppc}: give a whole number >= 1")
-    folders = [r["folder"] for r in manifest()] if a.experiments == ["all"] else a.experiments
+    known = [r["folder"] for r in manifest()]
+    folders = known if a.experiments == ["all"] else [Path(f).name for f in a.experiments]
+    unknown = [f for f in folders if f not in known]
+    if unknown:
+        ap.error(f"--experiments {unknown[0]}: not a shared experiment (one of {', '.join(known)}, or all)")
     fine = a.fine_mm or a.cell_mm / 2
     jobs = [(f, c, b, a.ppc) for f in folders for b in a.slip_m for c in (a.cell_mm, fine)]
     print(f"# IoU of cell {a.cell_mm:g} mm vs {fine:g} mm ({a.ppc} particle(s) per cell per axis), Table-1 parameters; "

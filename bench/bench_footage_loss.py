@@ -45,8 +45,11 @@ def main(argv=None) -> None:
     from mpm.datasets import manifest
     import mpm.solver as solver
 
-    exp = experiment.load(real_world_dir() / args.experiment)
-    material_name = next(r["material"] for r in manifest() if r["folder"] == exp.name)
+    known = {r["folder"]: r["material"] for r in manifest()}
+    if Path(args.experiment).name not in known:
+        ap.error(f"--experiment {args.experiment}: not a shared experiment (one of {', '.join(known)})")
+    exp = experiment.load(real_world_dir() / Path(args.experiment).name)
+    material_name = known[exp.name]
     mat = setup1_estimate(material_name)
     print(f"{exp.name}: W {exp.width_mm:g} x H {exp.height_mm:g} mm, rho {exp.density:g} kg/m^3, "
           f"material eta {mat.eta:.4g} Pa s^n, n {mat.n:.4g}, sigma_y {mat.sigma_y:.4g} Pa")

@@ -119,10 +119,20 @@ def worcestershire() -> None:
               f"  {load()}", flush=True)
 
 
+def _count_or_all(text: str):
+    """None for "all", else a whole number >= 1."""
+    if text == "all":
+        return None
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"give a number of experiments >= 1, or all; got {text!r}")
+    return int(text)
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--paper-70", action="store_true", help="also time 70 x 70 mm at 1.26 mm cells (slow)")
-    ap.add_argument("--experiments", default="all", help="number of shared experiments for the IoU study, or all")
+    ap.add_argument("--experiments", default="all", type=_count_or_all,
+                    help="number of shared experiments for the IoU study, or all")
     ap.add_argument("--max-area-mm2", type=float, default=1000.0,
                     help="IoU study only on setups with W*H up to this (the 2x finer run costs 16x)")
     ap.add_argument("--min-area-mm2", type=float, default=0.0,
@@ -135,7 +145,7 @@ def main(argv=None) -> None:
     if not a.skip_timing:
         timing(a.paper_70)
     if not a.skip_convergence:
-        convergence(None if a.experiments == "all" else int(a.experiments), a.max_area_mm2, a.min_area_mm2)
+        convergence(a.experiments, a.max_area_mm2, a.min_area_mm2)
     if not a.skip_loss:
         worcestershire()
     print(f"# total {time.time() - t0:.0f} s")

@@ -37,7 +37,7 @@ def main(argv=None) -> int:
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--slips-mm", default="0,0.5,1,2", help="slip lengths in mm, comma-separated")
-    p.add_argument("--only", nargs="*", default=None, help=f"slugs: {', '.join(SLUGS.values())}")
+    p.add_argument("--only", nargs="*", default=None, choices=list(SLUGS.values()), help="materials (slugs)")
     p.add_argument("--store", default=str(Path.home() / ".cache/virheometry/slip_footage"))
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--cell-mm", type=float, default=None, help="cell width in mm (default: the solver's)")
