@@ -8,6 +8,7 @@ loss of both against the footage. One simulation per process, ``--workers`` at a
     python bench/bench_convergence.py --experiments all --slip-m 0 0.002  # all 14 (hours on 2 cores)
     python bench/bench_convergence.py --experiments ref_Lotion_2.5_5.1_1 --cell-mm 1.5 --fine-mm 0.75
     python bench/bench_convergence.py --experiments EXP --slip-m 0.001 --cell-mm 2 --ppc 2  # two particles per axis
+    python bench/bench_convergence.py --experiments all --slip-m 0 --density-correction  # the `footage` preset's model
 """
 import argparse
 import os
@@ -26,7 +27,7 @@ DEFAULT_EXPERIMENTS = ("ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2", "re
 
 
 def _one(job):
-    folder, cell, slip, ppc = job
+    folder, cell, slip, ppc, corrected = job
     from mpm import solver
     from mpm.datasets import manifest, real_world_dir
     from mpm.experiment import load
@@ -39,7 +40,7 @@ def _one(job):
     try:
         sim = solver.simulate(mat, NS(width_mm=exp.width_mm, height_mm=exp.height_mm), density=exp.density,
                               cell_mm=cell, camera=exp.camera, depth_mm=exp.depth_mm, slip_length_m=slip,
-                              ppc=ppc)
+                              ppc=ppc, density_correction=corrected)
     except (ValueError, solver.SimulationError) as exc:  # too many particles, or the run blew up
         return f"{cell:g} mm: {exc}"
     return sim.silhouettes, float(video_loss(sim.silhouettes, exp.frames)), sim.front_m[-1] * 1e3, \
@@ -63,6 +64,7 @@ def main(argv=None) -> int:
     ap.add_argument("--fine-mm", type=float, default=None, help="default: cell / 2")
     ap.add_argument("--ppc", type=int, default=1, help="particles per cell per axis, both runs")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--density-correction", action="store_true", help="the solver's density correction, both runs")
     a = ap.parse_args(argv)
     if a.ppc < 1:
         ap.error(f"--ppc {a.ppc}: give a whole number >= 1")
@@ -72,15 +74,15 @@ def main(argv=None) -> int:
     if unknown:
         ap.error(f"--experiments {unknown[0]}: not a shared experiment (one of {', '.join(known)}, or all)")
     fine = a.fine_mm or a.cell_mm / 2
-    jobs = [(f, c, b, a.ppc) for f in folders for b in a.slip_m for c in (a.cell_mm, fine)]
+    jobs = [(f, c, b, a.ppc, a.density_correction) for f in folders for b in a.slip_m for c in (a.cell_mm, fine)]
     print(f"# IoU of cell {a.cell_mm:g} mm vs {fine:g} mm ({a.ppc} particle(s) per cell per axis), Table-1 parameters; "
-          f"loss = video loss against the footage")
+          f"loss = video loss against the footage{'; density-corrected' if a.density_correction else ''}")
     print(f"{'experiment':<52} {'slip mm':>7} {'mean IoU':>8} {'min IoU':>8} {'loss':>7} {'loss fine':>9} "
           f"{'front':>6} {'fine':>6} {'s':>5} {'s fine':>6}")
     rows = {}
     with ProcessPoolExecutor(a.workers, initializer=_init) as pool:
         results = pool.map(_one, jobs)  # in job order: each row prints as soon as its pair is done
-        for (f, _, b, _), ra, rb in zip(jobs[::2], results, results):
+        for (f, _, b, _, _), ra, rb in zip(jobs[::2], results, results):
             failed = [r for r in (ra, rb) if isinstance(r, str)]
             if failed:
                 print(f"{f:<52} {b * 1e3:7.2f} failed: {'; '.join(failed)}", flush=True)

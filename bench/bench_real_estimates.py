@@ -1,13 +1,13 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
     python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B | --finish-slip-mm B]
-                                         [--finish-generations G] [--finish-cell-mm C --finish-ppc P]
+                                         [--density-correction] [--finish-generations G] [--finish-cell-mm C --finish-ppc P]
                                          [--search-cell-mm C --search-ppc P]
                                          [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,
 okonomiyaki, lotion) runs unless ROOT/<slug>/result.json already holds a run finished with the same preset,
-seed, walls and finishing budget (then it is only scored; a killed run resumes from its store). Each run is
+seed, walls, solver and finishing budget (then it is only scored; a killed run resumes from its store). Each run is
 then scored: our estimate and the paper's (Table 1) under the same forward model as the run's reported loss
 (mean eq.-3 loss over the two setups), and both flow curves against the rheometer (RMS of log10 stress over
 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1 (one-setup) estimate's RMS, the wall time, the CPU
@@ -48,9 +48,10 @@ def _material(d: dict):
 
 
 def _on_cells(d: dict, model) -> bool:
-    """Whether ``d`` (a run's ``discretisation`` or one of its stages) names ``model``'s cells and particles
-    (where it does not say: assumed so)."""
-    return (d.get("cell_mm") is None or np.isclose(d["cell_mm"], model.cell_mm)) and d.get("ppc", model.ppc) == model.ppc
+    """Whether ``d`` (a run's ``discretisation`` or one of its stages) names ``model``'s cells, particles and
+    density correction (where it does not say the cells or particles: assumed so; no correction)."""
+    return ((d.get("cell_mm") is None or np.isclose(d["cell_mm"], model.cell_mm)) and d.get("ppc", model.ppc) == model.ppc
+            and bool(d.get("density_correction", False)) == model.density_correction)
 
 
 def _finish_generations(result: dict):
@@ -129,6 +130,8 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--slip-mm", type=float, default=None, help="passed to virheo estimate: walls slipping by this many mm")
+    p.add_argument("--density-correction", action="store_true",
+                   help="passed to virheo estimate: the solver's density correction in every stage")
     p.add_argument("--finish-slip-mm", type=float, default=None,
                    help="the preset's finishing stage with walls slipping by this many mm (its search as it is)")
     p.add_argument("--finish-generations", type=int, default=None,
@@ -177,6 +180,7 @@ def main(argv=None) -> int:
     presets.PRESETS[preset.name] = preset  # the registered preset, as `virheo estimate` in this process reads it
     if args.slip_mm is not None:
         preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
+    preset = replace(preset, density_correction=args.density_correction)
     final = preset.final.resolved()  # a finished run is reused only if it was estimated with this model
     slip = final.slip_length_m
     root = Path(args.root)
@@ -202,7 +206,8 @@ def main(argv=None) -> int:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),
                            "--workers", str(args.workers), "--quiet",
-                           *(["--slip-mm", str(args.slip_mm)] if args.slip_mm is not None else [])])
+                           *(["--slip-mm", str(args.slip_mm)] if args.slip_mm is not None else []),
+                           *(["--density-correction"] if args.density_correction else [])])
             if code:
                 return code
             results.setdefault(slug, {})["measured"] = {

@@ -30,13 +30,14 @@ def main(argv=None) -> int:
     p.add_argument("--setup", default="21x40")
     p.add_argument("--density", type=float, default=1200.0)
     p.add_argument("--slip-m", type=float, default=0.0, help="Navier slip length of floor and walls, metres")
+    p.add_argument("--density-correction", action="store_true", help="the solver's density correction")
     p.add_argument("--runs", nargs="*", default=list(DEFAULT_RUNS), help="CELL_MM,PPC[,CFL] (default CFL: the solver's)")
     args = p.parse_args(argv)
     material = Material.parse(args.material)
     setup = Setup.parse(args.setup)
     default_cfl = solver.CFL
     print(f"# {args.dim}D, material {args.material}, setup {args.setup} mm, density {args.density:g} kg/m^3, "
-          f"slip length {args.slip_m * 1e3:g} mm")
+          f"slip length {args.slip_m * 1e3:g} mm{', density-corrected' if args.density_correction else ''}")
     print("\n| cell mm | ppc | spacing mm | CFL | front per frame (mm) | final front mm | steps | wall s |")
     print("|---:|---:|---:|---:|---|---:|---:|---:|")
     for run in args.runs:
@@ -45,7 +46,7 @@ def main(argv=None) -> int:
         solver.CFL = float(parts[2]) if len(parts) > 2 else default_cfl
         t = time.perf_counter()
         sim = mpm.simulate(material, setup, density=args.density, cell_mm=cell, ppc=ppc, dim=args.dim,
-                           slip_length_m=args.slip_m)
+                           slip_length_m=args.slip_m, density_correction=args.density_correction)
         front = np.round(sim.front_m * 1e3, 1)
         print(f"| {cell:g} | {ppc} | {cell / ppc:.3g} | {solver.CFL:g} | {' '.join(f'{f:g}' for f in front)} | "
               f"**{front[-1]:g}** | {sim.stats.get('steps', '')} | {time.perf_counter() - t:.1f} |", flush=True)

@@ -1,6 +1,7 @@
 """The walls' slip length against real footage: eq.-3 loss of reference materials per slip length.
 
-    python bench/bench_slip_footage.py [--slips-mm 0,0.5,1,2] [--cell-mm 2] [--ppc 2] [--only lotion milk]
+    python bench/bench_slip_footage.py [--slips-mm 0,0.5,1,2] [--cell-mm 2] [--ppc 2] [--density-correction]
+                                       [--only lotion milk]
                                        [--score ETA,N,SIGMA_Y ...] [--store DIR] [--workers 2]
 
 For each of the four shared materials with rheometer curves, the mean eq.-3 loss over its two setups at the
@@ -42,6 +43,7 @@ def main(argv=None) -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--cell-mm", type=float, default=None, help="cell width in mm (default: the solver's)")
     p.add_argument("--ppc", type=int, default=None, help="particles per cell per axis (default: the solver's)")
+    p.add_argument("--density-correction", action="store_true", help="the solver's density correction")
     p.add_argument("--score", nargs="*", default=[], metavar="ETA,N,SIGMA_Y", help="more materials to score")
     args = p.parse_args(argv)
     others = parse_materials(p, args.score)
@@ -65,7 +67,8 @@ def main(argv=None) -> int:
             paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
             refs = [fit_herschel_bulkley(curves[name]).material, paper, *others]
             for b in slips:
-                model = dataclasses.replace(VALIDATED, slip_length_m=b, cell_mm=args.cell_mm, ppc=args.ppc).resolved()
+                model = dataclasses.replace(VALIDATED, slip_length_m=b, cell_mm=args.cell_mm, ppc=args.ppc,
+                                            density_correction=args.density_correction).resolved()
                 jobs = [(simulation_request(m, e, model), batch.experiment_id(e.frames, e.name), e.frames)
                         for m in refs for e in exps]
                 losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(refs), len(exps))

@@ -48,7 +48,8 @@ def camera_json(camera) -> str | None:
 
 def request_for(material, setup, *, density: float, depth_mm: float = 40.0, camera=None, cell_mm=None,
                 ppc: int | None = None, dim: int = 3, flow_rule: str = "paper", precision: str = "f32",
-                image_size=(960, 540), simulator: str = DEFAULT_SIMULATOR, slip_length_m=None) -> SimRequest:
+                image_size=(960, 540), simulator: str = DEFAULT_SIMULATOR, slip_length_m=None,
+                density_correction: bool = False) -> SimRequest:
     """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``)."""
     return SimRequest(
         eta=float(material.eta), n=float(material.n), sigma_y=float(material.sigma_y),
@@ -56,7 +57,7 @@ def request_for(material, setup, *, density: float, depth_mm: float = 40.0, came
         depth_mm=float(depth_mm), camera=camera_json(camera),
         cell_mm=None if cell_mm is None else float(cell_mm), ppc=None if ppc is None else int(ppc),
         slip_length_m=None if slip_length_m is None else float(slip_length_m),
-        dim=int(dim), flow_rule=str(flow_rule),
+        density_correction=bool(density_correction), dim=int(dim), flow_rule=str(flow_rule),
         precision=str(precision), image_size=tuple(int(v) for v in image_size),
         simulator=simulator, code_version=code_version(simulator),
     )
@@ -103,7 +104,7 @@ def run_mpm(request: SimRequest) -> SimResult:
         material, setup, density=request.density, cell_mm=request.cell_mm, dim=request.dim,
         flow_rule=request.flow_rule, camera=camera, depth_mm=request.depth_mm,
         image_size=tuple(request.image_size), precision=request.precision, ppc=request.ppc,
-        slip_length_m=request.slip_length_m,
+        slip_length_m=request.slip_length_m, density_correction=request.density_correction,
     )
     sil = None if getattr(sim, "silhouettes", None) is None else np.asarray(sim.silhouettes, dtype=bool)
     return SimResult(sil, np.asarray(sim.front_m, float), np.asarray(sim.times, float), dict(sim.stats or {}))

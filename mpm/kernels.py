@@ -8,10 +8,17 @@ One ``step`` launch advances the dam-break by one time step (paper section 4, ap
    fitted through the first node outside the wall (docs/method/forward-model.md, "Wall slip"; measured
    effect: docs/performance.md, "Wall slip").
 3. G2P: v_p = sum w v_i, C_p = sum v_i (x) grad w, elastic predictor b* = F b F^T with F = I + dt C
-   (eq. 52), plastic correction ``mpm.constitutive.return_mapping`` (eq. 57); particles inside a wall box
+   (eq. 52), with the density correction (below) the predictor's volume is capped at the one the particles'
+   own spacing implies; plastic correction ``mpm.constitutive.return_mapping`` (eq. 57); particles inside a wall box
    are frozen (v = 0, C = 0; with a slip length their elastic state too); advection x += dt v.
 With one thread all the steps up to the next time-step update run in one launch (a serial loop).
 The grid window and the uGIMP stencil are in ``mpm.stencil``, the wall tests and the slip law in ``mpm.walls``.
+
+Density correction (optional): the volume ratio J = sqrt(det b_e) that a particle carries and the volume its
+neighbours leave it drift apart; where particles crowd (grid density interpolated to the particle,
+rho_p = sum w m_i / dx^D, above the rest density rho_0 = m_p / V_p) the predictor's J is lowered to
+rho_0 / rho_p (times this step's det F), so that the pressure of eq. 12 pushes them apart. Never raised, so
+free surfaces (where rho_p underestimates) are left alone (docs/method/forward-model.md, "Density correction").
 """
 import taichi as ti
 
@@ -25,7 +32,7 @@ ERRORS = {1: "a particle position became NaN", 2: "particles left the region the
 def build_kernels(dim: int, tasks: int, atomic: bool):
     """The step kernel for ``dim``: on the CPU, ``tasks`` slices of the particles each scatter into their own
     grid copy without atomics; on the GPU (``atomic``) one grid copy with atomic adds."""
-    from mpm.constitutive import kirchhoff_stress, return_mapping
+    from mpm.constitutive import iso_factor, kirchhoff_stress, return_mapping
 
     D = dim
     nd = ti.types.ndarray()
@@ -105,10 +112,11 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
                      iso: ti.template(), loge: ti.template(), flags: ti.template(), grid: ti.template(), bx,
                      origin, stride, dt, inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template(),
-                     slipping: ti.template()):
+                     slipping: ti.template(), mp, vol, dens: ti.template()):
         xp = x[p]
         base, fx, w, dw = ugimp(xp, inv_dx, origin, lh)
         vp = ti.Vector.zero(float, D)
+        mass = 0.0
         B = ti.Matrix.zero(float, D, D)
         node0 = base.dot(stride)
         for lead in ti.static(LEADS):
@@ -117,6 +125,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             for a in ti.static(range(L)):
                 if ti.static(lead[a] > 0):
                     k0 += lead[a] * stride[a]
+            gm = 0.0  # sum_k w[L, k] m_k
             gw = ti.Vector.zero(float, D)  # sum_k w[L, k] v_k along the last axis
             gd = ti.Vector.zero(float, D)  # sum_k dw[L, k] v_k
             for k in ti.static(range(3)):
@@ -124,7 +133,9 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 gv = ti.Vector([g[a] for a in ti.static(range(D))])
                 gw += w[L, k] * gv
                 gd += dw[L, k] * gv
+                gm += w[L, k] * g[D]
             vp += wl * gw
+            mass += wl * gm
             for r in ti.static(range(D)):
                 for a in ti.static(range(L)):
                     B[r, a] += gl[a] * gw[r]
@@ -134,6 +145,13 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         iso_old, loge_old = iso[p], loge[p]
         F = ti.Matrix.identity(float, 3) + dt * embed(B)
         b_trial = sandwich(F, b_old)  # elastic predictor, eq. 52 in its F b F^T form
+        if ti.static(dens):
+            crowd = mass * inv_dx ** D * vol / mp  # rho_p / rho_0
+            if crowd > 1:
+                j_spacing = F.determinant() / crowd
+                det_trial = b_trial.determinant()
+                if j_spacing * j_spacing < det_trial:  # lower J only: det b_e = J^2
+                    b_trial *= iso_factor(det_trial / (j_spacing * j_spacing))  # (J_s^2 / det)^(1/3)
         # eq. 57, identity when elastic; the Newton solve starts from the particle's last log(e)
         b_new, iso_new, log_e, plastic = return_mapping(b_trial, b_old, iso[p], mu, eta, n, sy, dt, loge[p], yue)
         f = flags[p]
@@ -203,7 +221,8 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     def step_body(x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(), iso: ti.template(),
                   loge: ti.template(), flags: ti.template(), grid: ti.template(), win: ti.template(),
                   acc: ti.template(), accf: ti.template(), bx, lim: ti.template(), n, capg, dt, dx, mp, vol,
-                  kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue: ti.template(), slipping: ti.template()):
+                  kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue: ti.template(), slipping: ti.template(),
+                  dens: ti.template()):
         inv_dx = 1.0 / dx
         # 1. clear the previous window in every grid copy
         for i in range(win[COUNT]):
@@ -278,7 +297,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 if win[OVERFLOW] == 0 and win[ERROR] == 0:
                     origin, stride = window(win)
                     xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx, mu,
-                                          eta, nn, sy, zmid, lh, yue, slipping)
+                                          eta, nn, sy, zmid, lh, yue, slipping, mp, vol, dens)
                     if (xn != xn).any():
                         win[ERROR] = 1
                     base = stencil_base(xn, inv_dx, lh)
@@ -296,7 +315,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                     origin, stride = window(win)
                     for p in range(t * n // tasks, (t + 1) * n // tasks):
                         xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx,
-                                              mu, eta, nn, sy, zmid, lh, yue, slipping)
+                                              mu, eta, nn, sy, zmid, lh, yue, slipping, mp, vol, dens)
                         if (xn != xn).any():
                             bad = 1
                         base = stencil_base(xn, inv_dx, lh)
@@ -318,17 +337,18 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     def step(x: nd, v: nd, C: nd, be: nd, iso: nd, loge: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd,
              boxes: nd, lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float,
              kappa: float, mu: float, eta: float, nn: float, sy: float, body: ti.types.vector(D, float),
-             zmid: float, lh: float, slip: float, steps: ti.i32, yue: ti.template(), slipping: ti.template()):
+             zmid: float, lh: float, slip: float, steps: ti.i32, yue: ti.template(), slipping: ti.template(),
+             dens: ti.template()):
         if ti.static(serial):  # one thread: all ``steps`` steps in one launch, loops run in order
             for _ in range(1):
                 bx = load_boxes(boxes)
                 for _s in range(steps):
                     step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, n, capg, dt, dx, mp,
-                              vol, kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping)
+                              vol, kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping, dens)
         else:  # parallel loops: one step per launch
             bx = load_boxes(boxes)
             step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, n, capg, dt, dx, mp, vol,
-                      kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping)
+                      kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping, dens)
 
     @ti.kernel
     def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, lh: float):

@@ -98,7 +98,7 @@ def _compile_notice(eng):
 
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
              depth_mm=40.0, image_size=WORKING_SIZE, precision="f32", ppc=None, slip_length_m=None,
-             progress=None) -> Simulation:
+             density_correction=False, progress=None) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
@@ -108,6 +108,8 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     camera: a ``mpm.camera.Camera`` to also render silhouettes at image_size = (width, height);
     slip_length_m: Navier slip length b of floor and walls in metres (default ``SLIP_LENGTH_M``; 0 = sticking;
     the tangential wall velocity is b times the wall-normal shear rate);
+    density_correction: cap each particle's volume ratio at the one its neighbours' spacing implies where
+    particles crowd (``mpm.kernels``; measured: docs/method/forward-model.md, "Density correction");
     precision: "f32" or "f64"; flow_rule: one of ``FLOW_RULES``; progress: optional callable
     ``progress(frames_done, 8)`` called after each simulated frame.
     Raises ValueError for bad input, SimulationError when the run blows up.
@@ -120,7 +122,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     t_start, cpu_start = time.perf_counter(), time.process_time()
     eng = engine(dim, precision)
     t_ready = time.perf_counter()
-    run = _Run(eng, scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip)
+    run = _Run(eng, scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip, bool(density_correction))
     frames3, front, stats = run.execute(progress)
     t_sim = time.perf_counter()
     silhouettes = None
@@ -132,8 +134,8 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     stats.update(
         setup_s=t_ready - t_start, sim_s=t_sim - t_ready, render_s=t_end - t_sim, wall_s=t_end - t_start,
         cpu_s=time.process_time() - cpu_start,
-        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, dim=dim, precision=precision,
-        flow_rule=flow_rule,
+        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, density_correction=bool(density_correction),
+        dim=dim, precision=precision, flow_rule=flow_rule,
         arch=runtime.arch_name(), tasks=eng.tasks,
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)
@@ -144,10 +146,11 @@ class _Run:
     """One simulation on an engine's buffers."""
 
     def __init__(self, eng: Engine, scene: sc.DamBreak, eta, n, sigma_y, yue: bool, slip_m: float = 0.0,
-                 body=None):
+                 density_correction: bool = False, body=None):
         self.eng, self.scene = eng, scene
         self.eta, self.n, self.sigma_y, self.yue = eta, n, sigma_y, yue
         self.slip_m = float(slip_m)
+        self.density_correction = bool(density_correction)
         # body force per unit mass (m/s^2): gravity along -y unless given
         body = (0.0, -scene.gravity, 0.0) if body is None else tuple(float(b) for b in body)
         self.body = ti.Vector(list(body[:scene.dim]))
@@ -203,7 +206,8 @@ class _Run:
             eng.step(eng.x, eng.v, eng.C, eng.be, eng.iso, eng.loge, eng.flags, eng.grid, eng.win, eng.acc,
                      eng.accf, eng.boxes, eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass,
                      s.particle_volume, s.kappa, s.mu, self.eta, self.n, self.sigma_y, self.body, s.plane_z_m,
-                     s.half_length_m / s.cell_m, self.slip_m, per_launch, self.yue, self.slip_m > 0)
+                     s.half_length_m / s.cell_m, self.slip_m, per_launch, self.yue, self.slip_m > 0,
+                     self.density_correction)
 
     def _advance(self, steps: int, dt: float) -> None:
         """Run ``steps`` steps of size dt, growing the grid whenever the window overflows it."""

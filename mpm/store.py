@@ -75,6 +75,7 @@ class SimRequest:
     cell_mm: float | None = None
     ppc: int | None = None
     slip_length_m: float | None = None  # Navier slip length of floor and walls (None: the solver's default)
+    density_correction: bool = False  # mpm.kernels' density correction
     dim: int = 3
     flow_rule: str = "paper"
     precision: str = "f32"

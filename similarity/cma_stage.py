@@ -43,6 +43,7 @@ class Stage:
     cell_mm: float  # discretisation of the stage's forward model
     ppc: int
     slip_length_m: float = 0.0  # the walls' Navier slip length (0: sticking)
+    density_correction: bool = False  # the solver's density correction
     history: list[dict] = field(default_factory=list)  # per generation: simulations, best loss, best x, ...
     next_setup: str | None = None
     wall_seconds: float = 0.0
@@ -226,7 +227,8 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
         material=Material.from_array(denormalize(np.clip(state.best_x, 0, 1))), loss=state.best_loss,
         evaluations=state.evaluations, simulations=state.simulations, generations=state.drawn // POPSIZE,
         cell_mm=objective.model.cell_mm, ppc=objective.model.ppc,
-        slip_length_m=objective.model.slip_length_m, history=state.history,
+        slip_length_m=objective.model.slip_length_m, density_correction=objective.model.density_correction,
+        history=state.history,
         wall_seconds=state.wall_seconds + time.perf_counter() - t0, archive=state.archive, screened=state.screened,
         finish=finish, cma_iterations=state.generation,
     )

@@ -39,13 +39,15 @@ class Estimate:
     cell_mm: float  # discretisation at which ``loss`` was computed
     ppc: int
     slip_length_m: float = 0.0  # the walls' Navier slip length of that model (0: sticking)
+    density_correction: bool = False  # whether that model has the solver's density correction
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
             "estimate": self.material.to_dict(),
             "loss": self.loss,
-            "discretisation": {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m},
+            "discretisation": {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m,
+                               "density_correction": self.density_correction},
             "warnings": list(self.warnings),
             "setups": self.setups,
             "next_setup": None if self.next_setup is None else str(self.next_setup),
@@ -178,7 +180,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
         wall_seconds=time.perf_counter() - t0,
         next_setup=None if last.next_setup is None else Setup.parse(last.next_setup),
         preset=preset.name, seed=int(seed), setups=last.setups, cell_mm=last.cell_mm, ppc=last.ppc,
-        slip_length_m=last.slip_length_m,
+        slip_length_m=last.slip_length_m, density_correction=last.density_correction,
         warnings=bound_warnings(last.material),
     )
 

@@ -18,12 +18,14 @@ PAPER_SIGMA0 = 0.1  # stage-1 step size in [0, 1]^3: the paper's Sigma = 1 in a 
 
 @dataclass(frozen=True)
 class Discretisation:
-    """The forward model of a stage: MPM cell width in mm, particles per cell per axis and the walls' Navier
-    slip length in metres; None: the solver's default (the validated discretisation, sticking walls)."""
+    """The forward model of a stage: MPM cell width in mm, particles per cell per axis, the walls' Navier
+    slip length in metres and whether the solver's density correction is on; None: the solver's default (the
+    validated discretisation, sticking walls)."""
 
     cell_mm: float | None = None
     ppc: int | None = None
     slip_length_m: float | None = None
+    density_correction: bool = False
 
     def resolved(self) -> "Discretisation":
         """The same with the solver's defaults filled in."""
@@ -31,10 +33,12 @@ class Discretisation:
 
         return Discretisation(float(DEFAULT_CELL_MM if self.cell_mm is None else self.cell_mm),
                               int(PARTICLES_PER_CELL if self.ppc is None else self.ppc),
-                              float(SLIP_LENGTH_M if self.slip_length_m is None else self.slip_length_m))
+                              float(SLIP_LENGTH_M if self.slip_length_m is None else self.slip_length_m),
+                              bool(self.density_correction))
 
     def to_dict(self) -> dict:
-        return {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m}
+        return {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m,
+                "density_correction": self.density_correction}
 
 
 VALIDATED = Discretisation()  # the solver's default: converged against a 2x finer run on the shared footage
@@ -62,17 +66,19 @@ class Preset:
     finish: Discretisation = VALIDATED
     purpose: str = ""
     slip_length_m: float | None = None  # walls' Navier slip length in every stage; None: each stage's own
+    density_correction: bool = False  # the solver's density correction in every stage
 
     @property
     def search(self) -> Discretisation:
-        return Discretisation(self.cell_mm, self.ppc, self.slip_length_m)
+        return Discretisation(self.cell_mm, self.ppc, self.slip_length_m, self.density_correction)
 
     @property
     def final(self) -> Discretisation:
         """The discretisation of the last stage, i.e. of the estimate's loss."""
         if self.finish_generations == 0:
             return self.search
-        return self.finish if self.slip_length_m is None else replace(self.finish, slip_length_m=self.slip_length_m)
+        finish = self.finish if self.slip_length_m is None else replace(self.finish, slip_length_m=self.slip_length_m)
+        return replace(finish, density_correction=finish.density_correction or self.density_correction)
 
 
 PRESETS = {p.name: p for p in (
@@ -115,5 +121,6 @@ def simulation_request(material, experiment, model, simulator: str = batch.DEFAU
         material, setup_of(experiment), density=float(experiment.density), depth_mm=float(experiment.depth_mm),
         camera=experiment.camera, cell_mm=model.cell_mm, ppc=model.ppc,
         slip_length_m=model.slip_length_m or None,  # sticking walls keep the key they always had
+        density_correction=model.density_correction,
         image_size=image_size or image_size_of(experiment), simulator=simulator,
     )

@@ -62,6 +62,11 @@ def read_posterior(folder) -> dict:
     return s
 
 
+def density_correction_of(result: dict) -> bool:
+    """Whether a run's final model had the solver's density correction, from its ``result.json``."""
+    return bool((result.get("discretisation") or {}).get("density_correction", False))
+
+
 def slip_length_of(result: dict) -> float:
     """The walls' slip length in metres a run was estimated with, from its ``result.json`` (runs that do not
     say it had sticking walls)."""
@@ -80,6 +85,7 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     path = folder / "result.json"
     preset = get_preset(result.get("preset", "demo"))
     preset = replace(preset, slip_length_m=slip_length_of(result))  # its own walls, whatever the preset's now
+    preset = replace(preset, density_correction=density_correction_of(result))  # and its own solver
     simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
     store = store if store is not None else Store(folder / "store")
     setups = [Setup.parse(s) for s in result.get("setups", [])]

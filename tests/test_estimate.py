@@ -235,6 +235,7 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     # ... with slipping walls, and only those slip
     assert {r.slip_length_m for r in validated} == {FOOTAGE_SLIP_LENGTH_M}
     assert {r.slip_length_m for r in stored if r not in validated} == {None}
+    assert not any(r.density_correction for r in stored)
     # the answer and its loss are the finishing stage's, recomputed from the store at that discretisation
     assert est.material == fine.material and (est.cell_mm, est.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
@@ -246,10 +247,13 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     assert est.loss <= min(r[3] for r in fine.screened)
     d = est.to_dict()
     assert d["discretisation"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL,
-                                   "slip_length_m": FOOTAGE_SLIP_LENGTH_M}
+                                   "slip_length_m": FOOTAGE_SLIP_LENGTH_M, "density_correction": False}
     assert d["warnings"] == E.bound_warnings(est.material)
     # one slip length for all stages (virheo estimate --slip-mm): the finishing stage takes it too
     assert replace(footage, slip_length_m=0.0).final == replace(VALIDATED, slip_length_m=0.0)
+    # the density correction (virheo estimate --density-correction) likewise reaches every stage
+    corrected = replace(footage, density_correction=True)
+    assert corrected.search.density_correction and corrected.final == replace(footage.final, density_correction=True)
 
 
 @pytest.mark.parametrize("material, expected", [
@@ -284,3 +288,23 @@ def test_a_run_is_reread_with_the_walls_it_was_estimated_with(tmp_path, shared_d
     assert run.preset.search.slip_length_m == expected and run.preset.final.slip_length_m == expected
     req = E.simulation_request(run.estimate, run.experiments[0], run.preset.final)
     assert req.slip_length_m == (expected or None)  # sticking requests keep the store key they always had
+
+
+@pytest.mark.parametrize("recorded", [None, False, True])
+def test_a_run_is_reread_with_the_solver_it_was_estimated_with(tmp_path, shared_data, recorded):
+    """load_run takes the density correction from the run's result too (runs that do not say it had none), in
+    every stage, so that `virheo report` re-simulates the model that made the estimate."""
+    from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
+    from similarity.run_folder import load_run
+
+    folder = shared_data / "real_world" / "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
+    disc = {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL, "slip_length_m": 0.0}
+    if recorded is not None:
+        disc["density_correction"] = recorded
+    (tmp_path / "result.json").write_text(json.dumps({
+        "estimate": {"eta": 1.0, "n": 0.6, "sigma_y": 2.0}, "preset": "footage", "folders": [str(folder)],
+        "setups": ["30x20"], "discretisation": disc}))
+    run = load_run(tmp_path)
+    expected = bool(recorded)
+    assert run.preset.search.density_correction == expected and run.preset.final.density_correction == expected
+    assert E.simulation_request(run.estimate, run.experiments[0], run.preset.final).density_correction == expected

@@ -23,6 +23,10 @@ def register(subparsers) -> None:
                    help="Navier slip length of the floor and walls in mm, in every stage (default: the preset's; "
                    "footage: sticking search, 1 mm in the finishing stage; 0: sticking throughout; measured effect "
                    "in docs/performance.md, Wall slip)")
+    p.add_argument("--density-correction", action="store_true",
+                   help="the solver's density correction in every stage (one particle per cell then converges in "
+                   "2D and ranks materials like the paper's discretisation; measured in docs/validation.md, "
+                   "The density correction)")
     add_run_options(p, default_out=None)
     p.set_defaults(func=run)
 
@@ -57,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         if not 0.0 <= args.slip_mm <= 1000.0:  # also refuses nan
             raise ValueError(f"--slip-mm {args.slip_mm:g} must be within 0-1000 mm (0: sticking walls)")
         preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
+    if args.density_correction:
+        preset = replace(preset, density_correction=True)
     experiments = load_experiments(args.dirs, "estimate")
     with open_run(args) as run:
         est = E.estimate(experiments, preset=preset, seed=args.seed, executor=run.executor, store=run.store,
@@ -68,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
     m = est.material
     print(f"estimate: eta = {m.eta:.4g} Pa s^n, n = {m.n:.4g}, sigma_y = {m.sigma_y:.4g} Pa "
           f"(loss {est.loss:.5f} at {est.cell_mm:g} mm cells, {est.ppc} particle(s) per cell per axis"
+          f"{', density-corrected' if est.density_correction else ''}"
           f"{f', walls slipping {est.slip_length_m * 1e3:g} mm' if est.slip_length_m else ''}; "
           f"{run.cost_line(est.simulations)})")
     for w in est.warnings:
