@@ -270,41 +270,24 @@ def test_bound_warnings_name_the_parameter_and_bound(material, expected):
     assert all("may lie outside" in w for w in lines)
 
 
-@pytest.mark.parametrize("recorded, expected", [(None, 0.0), (0.0, 0.0), (1e-3, 1e-3)])
-def test_a_run_is_reread_with_the_walls_it_was_estimated_with(tmp_path, shared_data, recorded, expected):
-    """load_run takes the slip length from the run's result, not from today's preset: a run that does not say
-    it (older runs) or says 0 had sticking walls; its report and re-scoring must simulate those walls."""
+@pytest.mark.parametrize("recorded, slip, corrected", [
+    ({}, 0.0, False), ({"slip_length_m": 0.0}, 0.0, False), ({"slip_length_m": 1e-3}, 1e-3, False),
+    ({"density_correction": False}, 0.0, False), ({"slip_length_m": 0.0, "density_correction": True}, 0.0, True)])
+def test_a_run_is_reread_with_the_model_it_was_estimated_with(tmp_path, shared_data, recorded, slip, corrected):
+    """load_run takes the walls' slip length and the density correction from the run's result, not from today's
+    preset: a run that does not say them (older runs) had sticking walls and no correction; its report and
+    re-scoring must simulate that model, in every stage."""
     from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
     from similarity.run_folder import load_run
 
     folder = shared_data / "real_world" / "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
-    disc = {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL}
-    if recorded is not None:
-        disc["slip_length_m"] = recorded
+    disc = {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL, **recorded}
     (tmp_path / "result.json").write_text(json.dumps({
         "estimate": {"eta": 1.0, "n": 0.6, "sigma_y": 2.0}, "preset": "footage", "folders": [str(folder)],
         "setups": ["30x20"], "discretisation": disc}))
     run = load_run(tmp_path)
-    assert run.preset.search.slip_length_m == expected and run.preset.final.slip_length_m == expected
+    for model in (run.preset.search, run.preset.final):
+        assert model.slip_length_m == slip and model.density_correction == corrected
     req = E.simulation_request(run.estimate, run.experiments[0], run.preset.final)
-    assert req.slip_length_m == (expected or None)  # sticking requests keep the store key they always had
-
-
-@pytest.mark.parametrize("recorded", [None, False, True])
-def test_a_run_is_reread_with_the_solver_it_was_estimated_with(tmp_path, shared_data, recorded):
-    """load_run takes the density correction from the run's result too (runs that do not say it had none), in
-    every stage, so that `virheo report` re-simulates the model that made the estimate."""
-    from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
-    from similarity.run_folder import load_run
-
-    folder = shared_data / "real_world" / "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
-    disc = {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL, "slip_length_m": 0.0}
-    if recorded is not None:
-        disc["density_correction"] = recorded
-    (tmp_path / "result.json").write_text(json.dumps({
-        "estimate": {"eta": 1.0, "n": 0.6, "sigma_y": 2.0}, "preset": "footage", "folders": [str(folder)],
-        "setups": ["30x20"], "discretisation": disc}))
-    run = load_run(tmp_path)
-    expected = bool(recorded)
-    assert run.preset.search.density_correction == expected and run.preset.final.density_correction == expected
-    assert E.simulation_request(run.estimate, run.experiments[0], run.preset.final).density_correction == expected
+    assert req.slip_length_m == (slip or None)  # sticking requests keep the store key they always had
+    assert req.density_correction == corrected
