@@ -8,7 +8,7 @@ loss of both against the footage. One simulation per process, ``--workers`` at a
     python bench/bench_convergence.py --experiments all --slip-m 0 0.002  # all 14 (hours on 2 cores)
     python bench/bench_convergence.py --experiments ref_Lotion_2.5_5.1_1 --cell-mm 1.5 --fine-mm 0.75
     python bench/bench_convergence.py --experiments EXP --slip-m 0.001 --cell-mm 2 --ppc 2  # two particles per axis
-    python bench/bench_convergence.py --experiments all --slip-m 0 --density-correction  # the `footage` preset's model
+    python bench/bench_convergence.py --experiments all --slip-m 0 --density-correction  # with the density correction
 """
 import argparse
 import os

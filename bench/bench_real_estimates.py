@@ -1,8 +1,8 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
     python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B | --finish-slip-mm B]
-                                         [--density-correction] [--finish-generations G] [--finish-cell-mm C --finish-ppc P]
-                                         [--search-cell-mm C --search-ppc P]
+                                         [--density-correction] [--finish-generations G]
+                                         [--finish-cell-mm C --finish-ppc P] [--search-cell-mm C --search-ppc P]
                                          [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
 For each material, ``virheo estimate SETUP1 SETUP2 --out ROOT/<slug>`` (slugs: worcestershire, milk,

@@ -1,8 +1,7 @@
 """The walls' slip length against real footage: eq.-3 loss of reference materials per slip length.
 
     python bench/bench_slip_footage.py [--slips-mm 0,0.5,1,2] [--cell-mm 2] [--ppc 2] [--density-correction]
-                                       [--only lotion milk]
-                                       [--score ETA,N,SIGMA_Y ...] [--store DIR] [--workers 2]
+                                       [--only lotion milk] [--score ETA,N,SIGMA_Y ...] [--store DIR] [--workers 2]
 
 For each of the four shared materials with rheometer curves, the mean eq.-3 loss over its two setups at the
 solver's validated discretisation (1.5 mm, one particle per cell per axis) for two reference materials: the

@@ -18,7 +18,7 @@ from mpm import batch
 from mpm.store import Store
 from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
-from similarity.presets import PRESETS, Preset, get_preset, setup_of, simulation_request  # noqa: F401
+from similarity.presets import PRESETS, Discretisation, Preset, get_preset, setup_of, simulation_request  # noqa: F401
 from similarity.space import LOWER, UPPER, Material, Setup, center, denormalize, e_rel, normalize
 
 BOUND_MARGIN = 0.02  # an estimate this close to a bound (fraction of the parameter's range) gets a warning
@@ -46,8 +46,8 @@ class Estimate:
         return {
             "estimate": self.material.to_dict(),
             "loss": self.loss,
-            "discretisation": {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m,
-                               "density_correction": self.density_correction},
+            "discretisation": Discretisation(self.cell_mm, self.ppc, self.slip_length_m,
+                                             self.density_correction).to_dict(),
             "warnings": list(self.warnings),
             "setups": self.setups,
             "next_setup": None if self.next_setup is None else str(self.next_setup),
