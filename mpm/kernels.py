@@ -133,9 +133,11 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 gv = ti.Vector([g[a] for a in ti.static(range(D))])
                 gw += w[L, k] * gv
                 gd += dw[L, k] * gv
-                gm += w[L, k] * g[D]
+                if ti.static(dens):
+                    gm += w[L, k] * g[D]
             vp += wl * gw
-            mass += wl * gm
+            if ti.static(dens):
+                mass += wl * gm
             for r in ti.static(range(D)):
                 for a in ti.static(range(L)):
                     B[r, a] += gl[a] * gw[r]
