@@ -84,8 +84,8 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     result, estimate = read_result(folder)
     path = folder / "result.json"
     preset = get_preset(result.get("preset", "demo"))
-    preset = replace(preset, slip_length_m=slip_length_of(result))  # its own walls, whatever the preset's now
-    preset = replace(preset, density_correction=density_correction_of(result))  # and its own solver
+    # its own walls and solver, whatever the preset's now
+    preset = replace(preset, slip_length_m=slip_length_of(result), density_correction=density_correction_of(result))
     simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
     store = store if store is not None else Store(folder / "store")
     setups = [Setup.parse(s) for s in result.get("setups", [])]
