@@ -1,11 +1,13 @@
-"""Driver of the MPM dam-break: ``simulate`` builds the scene, runs the time loop on the compiled step
-kernel of ``mpm.kernels`` and renders silhouettes; ``Simulation`` holds the result.
+"""Driver of the MPM dam-break: ``simulate`` builds the scene, runs the time loop on the engine that
+``mpm.runtime`` chooses (the compiled Taichi step kernel of ``mpm.kernels``, or ``mpm.native_engine``) and renders
+silhouettes; ``Simulation`` holds the result.
 
 Default discretisation: one particle per cell per axis on 1.5 mm cells (the paper's: ``cell_mm=1.26,
 ppc=2``); time step from the CFL condition of the elastic wave speed plus the particle speed. ``dim=2`` is
 plane strain at mid-depth, its frames extruded over the depth. One simulation at a time per process.
 """
 import contextlib
+import functools
 import math
 import sys
 import threading
@@ -51,7 +53,7 @@ def _check_options(dim, flow_rule, precision, image_size):
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
     check_flow_rule(flow_rule)
-    runtime.float_type(precision)
+    runtime.float_type_name(precision)
     from mpm.camera import image_size_of
 
     return image_size_of(image_size)
@@ -112,17 +114,26 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     particles crowd (``mpm.kernels``; measured: docs/method/forward-model.md, "Density correction");
     precision: "f32" or "f64"; flow_rule: one of ``FLOW_RULES``; progress: optional callable
     ``progress(frames_done, 8)`` called after each simulated frame.
-    Raises ValueError for bad input, SimulationError when the run blows up.
+    The engine is ``mpm.runtime.engine_for(precision)`` (``$VIRHEO_ARCH``); ``stats["arch"]`` names it.
+    Raises ValueError for bad input (an unknown or unavailable engine too), SimulationError when the run blows up.
     """
     mat = Material.of(material)
     size = _check_options(dim, flow_rule, precision, image_size)
     slip = check_slip_length(SLIP_LENGTH_M if slip_length_m is None else slip_length_m)
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
                               depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc)
+    name = runtime.engine_for(precision, say=True)
     t_start, cpu_start = time.perf_counter(), time.process_time()
-    eng = engine(dim, precision)
+    args = (scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip, bool(density_correction))
+    if name == "native":
+        from mpm import native_engine
+
+        start, tasks = native_engine.NativeRun, runtime.threads()
+    else:
+        eng = engine(dim, precision)
+        start, tasks = functools.partial(_Run, eng), eng.tasks
     t_ready = time.perf_counter()
-    run = _Run(eng, scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip, bool(density_correction))
+    run = start(*args)
     frames3, front, stats = run.execute(progress)
     t_sim = time.perf_counter()
     silhouettes = None
@@ -136,7 +147,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
         cpu_s=time.process_time() - cpu_start,
         cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, density_correction=bool(density_correction),
         dim=dim, precision=precision, flow_rule=flow_rule,
-        arch=runtime.arch_name(), tasks=eng.tasks,
+        arch=name, tasks=tasks,
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)
     return Simulation(frame_times(), frames3, silhouettes, front, stats)
