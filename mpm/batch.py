@@ -27,6 +27,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from mpm import runtime
 from mpm.loss import video_loss
 from mpm.store import SimRequest, SimResult, Store, digest
 
@@ -50,7 +51,8 @@ def request_for(material, setup, *, density: float, depth_mm: float = 40.0, came
                 ppc: int | None = None, dim: int = 3, flow_rule: str = "paper", precision: str = "f32",
                 image_size=(960, 540), simulator: str = DEFAULT_SIMULATOR, slip_length_m=None,
                 density_correction: bool = False) -> SimRequest:
-    """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``)."""
+    """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``),
+    for the engine that ``$VIRHEO_ARCH`` chooses (ValueError, one line, for an unknown or unavailable one)."""
     return SimRequest(
         eta=float(material.eta), n=float(material.n), sigma_y=float(material.sigma_y),
         width_mm=float(setup.width_mm), height_mm=float(setup.height_mm), density=float(density),
@@ -59,18 +61,29 @@ def request_for(material, setup, *, density: float, depth_mm: float = 40.0, came
         slip_length_m=None if slip_length_m is None else float(slip_length_m),
         density_correction=bool(density_correction), dim=int(dim), flow_rule=str(flow_rule),
         precision=str(precision), image_size=tuple(int(v) for v in image_size),
-        simulator=simulator, code_version=code_version(simulator),
+        simulator=simulator, code_version=code_version(simulator), engine=runtime.engine_for(str(precision)),
     )
 
 
 _VERSIONS: dict[str, str] = {}
+_BUILT = {".o", ".obj", ".so", ".pyd", ".dll", ".dylib", ".a", ".lib", ".pyc", ".d"}  # build outputs, not sources
+
+
+def native_sources() -> list[Path]:
+    """The native engine's source files: everything under ``mpm/native/`` but build outputs, sorted."""
+    base = Path(__file__).parent / "native"
+    if not base.is_dir():
+        return []
+    return sorted(p for p in base.rglob("*") if p.is_file() and p.suffix not in _BUILT
+                  and not {"__pycache__", "build"} & set(p.relative_to(base).parts[:-1]))
 
 
 def code_version(simulator: str) -> str:
     """Version of the forward model's source: ``CODE_VERSION`` of its module if set, else a source hash.
 
     For the MPM simulator the hash covers every ``mpm/*.py`` that takes part in simulating
-    (not the store, batch, data or loss modules), so editing the solver invalidates the cache.
+    (not the store, batch, data or loss modules) and the native engine's sources under ``mpm/native/``, so
+    editing either engine invalidates the cache.
     """
     if simulator in _VERSIONS:
         return _VERSIONS[simulator]
@@ -79,12 +92,13 @@ def code_version(simulator: str) -> str:
     version = getattr(module, "CODE_VERSION", None)
     if version is None:
         h = hashlib.sha256()
+        here = Path(__file__).parent
         if simulator == DEFAULT_SIMULATOR:
-            files = sorted(p for p in Path(__file__).parent.glob("*.py") if p.name not in _NOT_SIMULATION)
+            files = sorted(p for p in here.glob("*.py") if p.name not in _NOT_SIMULATION) + native_sources()
         else:
             files = [Path(module.__file__)]
         for p in files:
-            h.update(p.name.encode())
+            h.update(p.relative_to(here).as_posix().encode() if p.is_relative_to(here) else p.name.encode())
             h.update(p.read_bytes())
         version = h.hexdigest()[:16]
     _VERSIONS[simulator] = version
@@ -93,8 +107,15 @@ def code_version(simulator: str) -> str:
 
 # -- the forward model (runs in the workers) -------------------------------------------------------
 def run_mpm(request: SimRequest) -> SimResult:
-    """The default forward model: :func:`mpm.simulate` with the request's settings."""
+    """The default forward model: :func:`mpm.simulate` with the request's settings, on the request's engine
+    (ValueError when this process would simulate on another: its ``$VIRHEO_ARCH`` differs from the requester's)."""
     import mpm.solver as solver
+
+    here = runtime.engine_for(request.precision)
+    if request.engine and request.engine != here:
+        raise ValueError(f"a simulation requested for the {request.engine} engine would run on {here} in this "
+                         f"process (VIRHEO_ARCH={os.environ.get('VIRHEO_ARCH', 'auto')}): give every worker the "
+                         f"requester's VIRHEO_ARCH")
     from mpm.camera import Camera
     from mpm.params import Material, Setup
 
@@ -144,16 +165,19 @@ class InlineExecutor(Executor):
 
 def _init_worker() -> None:
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one simulation per core
+    runtime.leave_notices_to_parent()  # local_executor said which engine runs, once for all workers
     # results travel back through the executor: what a worker prints (Taichi's start-up lines) is noise
     sys.stdout = open(os.devnull, "w")
 
 
 def local_executor(workers: int | None = None) -> Executor:
-    """Local worker processes ('spawn'); ``workers=0`` -> in-process. Default: one per CPU core."""
+    """Local worker processes ('spawn'), which inherit ``$VIRHEO_ARCH`` and so the engine; ``workers=0`` ->
+    in-process. Default: one per CPU core. ValueError (one line) for an unknown or unavailable engine."""
     if workers is not None and workers < 0:
         raise ValueError(f"workers={workers} must be >= 0 (0: in this process)")
     if workers == 0:
         return InlineExecutor()
+    runtime.engine_for(say=True)  # an unknown or unavailable engine fails here, before any worker starts
     return ProcessPoolExecutor(
         max_workers=int(workers or os.cpu_count() or 1), mp_context=multiprocessing.get_context("spawn"),
         initializer=_init_worker,

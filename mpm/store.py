@@ -1,7 +1,7 @@
 """Simulation store: an SQLite index plus compressed arrays on disk, and optimiser checkpoints.
 
 Every simulation *request* (material, setup, density, depth, camera, cell width, dimension, flow
-rule, precision, image size, simulator and its code version) has a stable key, the SHA-256 of its
+rule, precision, image size, simulator, its code version and engine) has a stable key, the SHA-256 of its
 canonical JSON.  A finished simulation is stored as
 
 * ``sims/<key[:2]>/<key>.npz``: silhouettes packed with ``np.packbits``, front position per frame,
@@ -61,7 +61,8 @@ class SimRequest:
 
     ``camera`` is the camera's ``to_dict()`` as canonical JSON text (None: no silhouettes);
     ``simulator`` names the forward model as ``"module:function"`` and ``code_version`` its
-    source version, so that a changed solver never serves stale results.
+    source version, so that a changed solver never serves stale results; ``engine`` the engine that runs it
+    (``mpm.runtime.engine_for``), so that one engine's results never stand in for another's.
     """
 
     eta: float
@@ -82,9 +83,12 @@ class SimRequest:
     image_size: tuple = (960, 540)
     simulator: str = "mpm.batch:run_mpm"
     code_version: str = ""
+    engine: str = ""  # the engine that simulates it (mpm.runtime.ENGINES); "" in requests stored before engines
 
     def to_dict(self) -> dict:
         d = asdict(self)
+        if not self.engine:  # a request stored before engines keeps its key (and never matches a new request)
+            del d["engine"]
         d["image_size"] = list(self.image_size)
         d["camera"] = json.loads(self.camera) if self.camera else None
         return d
