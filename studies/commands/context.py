@@ -149,6 +149,14 @@ def check_run_options(args) -> None:
         raise ValueError(f"--store {store} is a file, not a folder: name a folder")
 
 
+def check_engine() -> str:
+    """The engine ``$VIRHEO_ARCH`` chooses (``mpm.runtime.engine_name``): a command that simulates asks first, so
+    that an unknown or unavailable engine is one line and exit 2 before any file is written."""
+    from mpm import runtime
+
+    return runtime.engine_name()
+
+
 def simulator() -> str:
     from mpm import batch
 
@@ -200,6 +208,7 @@ def open_run(args):
     from mpm.store import Store
     from studies.report import progress_bars
 
+    check_engine()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     store = Store(Path(args.store) if args.store else out / "store")

@@ -8,6 +8,8 @@ import sys
 import time
 from pathlib import Path
 
+from studies.commands.context import check_engine
+
 
 def register(subparsers) -> None:
     from paper_figures import FIGURES
@@ -51,12 +53,13 @@ def run(args: argparse.Namespace) -> int:
     names = selected(args.only)
     if args.workers is not None and args.workers < 0:
         raise ValueError(f"--workers {args.workers} must be >= 0")
+    simulating = any(n not in SIMULATION_FREE for n in names)
+    if simulating:
+        check_engine()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     store = Store(args.store or out / "store")
-    executor = None
-    if any(n not in SIMULATION_FREE for n in names):
-        executor = batch.local_executor(args.workers)
+    executor = batch.local_executor(args.workers) if simulating else None
     context = Context(store=store, executor=executor, landscapes=args.landscapes)
     made = missing = 0
     t_all = time.perf_counter()

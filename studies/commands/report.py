@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from studies.commands.context import add_posterior_options, check_posterior_options, seed
+from studies.commands.context import add_posterior_options, check_engine, check_posterior_options, seed
 
 
 def register(subparsers) -> None:
@@ -48,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
     check_posterior_options(args)
     curve = _read_rheometer(args.rheometer) if args.rheometer else None  # bad files stop here, before any work
     progress = None if args.quiet else (lambda ev: print(ev["text"]) if ev.get("event") == "message" else None)
+    check_engine()
     store = Store(args.store) if args.store else None
     executor = batch.local_executor(args.workers)
     try:

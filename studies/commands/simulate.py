@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.params import FLOW_RULES
-from studies.commands.context import integer, real
+from studies.commands.context import check_engine, integer, real
 
 HELP = """Simulate a Herschel-Bulkley dam-break for 1/3 s (8 frames at 24 fps).
 Units: --material ETA,N,SIGMA_Y in SI (Pa s^n, -, Pa); --setup WIDTHxHEIGHT in mm (20..70);
@@ -94,6 +94,7 @@ def run(args) -> int:
     camera = exp.camera if exp else (cam.Camera.from_xml(args.camera) if args.camera else cam.Camera.default())
     density = args.density or (exp.density if exp else 1000.0)
     depth_mm = args.depth_mm or (exp.depth_mm if exp else 40.0)
+    check_engine()
     out.mkdir(parents=True, exist_ok=True)
 
     import mpm
