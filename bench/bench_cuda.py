@@ -1,4 +1,4 @@
-"""The CUDA path against the CPU path: silhouettes, loss and throughput of the solver on one GPU.
+"""Taichi's CUDA path against its CPU path: silhouettes, loss and throughput of the solver on one GPU.
 
     VIRHEO_DATA=... python bench/bench_cuda.py [--experiment FOLDER] [--models 1.5:1 1.26:2 0.75:2]
                                                [--cpu-models 1.5:1 1.26:2] [--population 16] [--workers 1 4 8]
@@ -7,9 +7,9 @@ For one shared experiment at its Table-1 parameters, walls slipping by the foota
 
 1. each ``--models`` discretisation (cell mm : particles per cell per axis) on CUDA: particles, steps, simulation
    seconds, particle-steps per second and the eq.-3 loss against the footage;
-2. each ``--cpu-models`` one on the CPU (one process, ``--cpu-threads`` Taichi threads, default 1) and, for
-   those, how far CUDA is from the CPU:
-   mean and min silhouette IoU over the 8 frames, the loss of each, and the runout difference;
+2. each ``--cpu-models`` one on Taichi's CPU path (``VIRHEO_ARCH=taichi-cpu``; one process, ``--cpu-threads``
+   Taichi threads, default 1) and, for those, how far CUDA is from the CPU: mean and min silhouette IoU over the
+   8 frames, the loss of each, and the runout difference;
 3. a population of ``--population`` materials around Table 1 (log-normal, as a CMA-ES generation) at the
    default discretisation, simulated by 1, 4, 8 ... worker processes sharing the GPU: simulations per second.
 
@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 
 @contextmanager
 def arch_env(arch: str, threads: int):
-    """Worker processes spawned inside inherit this Taichi architecture and thread count."""
+    """Worker processes spawned inside inherit this engine ($VIRHEO_ARCH) and thread count."""
     old = {k: os.environ.get(k) for k in ("VIRHEO_ARCH", "VIRHEO_THREADS")}
     os.environ.update(VIRHEO_ARCH=arch, VIRHEO_THREADS=str(threads))
     try:
@@ -101,7 +101,7 @@ def main(argv=None) -> int:
     results = {}
     print("| arch | cell mm | ppc | particles | steps | sim s | wall s | Mpstep/s | loss |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for arch, threads, todo in (("cuda", 1, models), ("cpu", max(1, a.cpu_threads), cpu_models)):
+    for arch, threads, todo in (("cuda", 1, models), ("taichi-cpu", max(1, a.cpu_threads), cpu_models)):
         if not todo:
             continue
         with arch_env(arch, threads):
@@ -118,7 +118,7 @@ def main(argv=None) -> int:
             print(f"| {s['arch']} | {m.cell_mm:g} | {m.ppc} | {s['n_particles']} | {s['steps']} | {s['sim_s']:.2f} | "
                   f"{res.wall_seconds:.2f} | {s['particle_steps_per_s'] / 1e6:.1f} | {loss:.5f} |", flush=True)
     for m in cpu_models:
-        g, c = results.get(("cuda", m.cell_mm, m.ppc)), results.get(("cpu", m.cell_mm, m.ppc))
+        g, c = results.get(("cuda", m.cell_mm, m.ppc)), results.get(("taichi-cpu", m.cell_mm, m.ppc))
         if g is None or c is None:
             continue
         ious = [iou(x, y) for x, y in zip(g.silhouettes, c.silhouettes)]

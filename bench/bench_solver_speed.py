@@ -1,4 +1,4 @@
-"""CPU solver speed and cold start, old and new side by side in one run, one Taichi thread each.
+"""Taichi CPU solver speed and cold start (VIRHEO_ARCH=taichi-cpu), old and new side by side, one thread each.
 
 The old solver is the ``mpm`` package of a git revision (default ``main``), extracted with ``git archive``
 into a temporary package ``mpm_base``; the new one is this checkout's ``mpm``. Each runs in its own worker
@@ -120,7 +120,9 @@ def main(argv=None) -> int:
     env = dict(os.environ, VIRHEO_THREADS="1")  # one thread, as batch evaluation runs
     workers = []
     for name, package, path in (("old", "mpm_base", str(tmp)), ("new", "mpm", str(ROOT))):
-        wenv = dict(env)
+        # Taichi's CPU path on both sides (named "cpu" before the native engine came)
+        runtime_py = Path(path) / package / "runtime.py"
+        wenv = dict(env, VIRHEO_ARCH="taichi-cpu" if "taichi-cpu" in runtime_py.read_text() else "cpu")
         if a.fresh_cache:
             cache = tmp / f"ticache-{name}"
             cache.mkdir()
