@@ -43,7 +43,7 @@ def _has_cuda() -> bool:
     return bool(getattr(ti._lib.core, "with_cuda", lambda: False)())
 
 
-def _native_missing() -> str | None:
+def native_missing() -> str | None:
     """None when the native engine can run here, else one line saying why not."""
     try:
         native_engine = importlib.import_module("mpm.native_engine")
@@ -67,7 +67,7 @@ def _choose() -> tuple[str, str | None]:
         if want == "cuda" and not _has_cuda():
             raise ValueError("VIRHEO_ARCH=cuda but no CUDA device is available")
         return "cuda", None
-    missing = _native_missing()
+    missing = native_missing()
     if want == "native":
         if missing is not None:
             raise ValueError(f"VIRHEO_ARCH=native but the native engine is not available: {missing}")

@@ -122,18 +122,10 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     slip = check_slip_length(SLIP_LENGTH_M if slip_length_m is None else slip_length_m)
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
                               depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc)
-    name = runtime.engine_for(precision, say=True)
     t_start, cpu_start = time.perf_counter(), time.process_time()
-    args = (scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip, bool(density_correction))
-    if name == "native":
-        from mpm import native_engine
-
-        start, tasks = native_engine.NativeRun, runtime.threads()
-    else:
-        eng = engine(dim, precision)
-        start, tasks = functools.partial(_Run, eng), eng.tasks
+    start, name, tasks = runner(dim, precision)
     t_ready = time.perf_counter()
-    run = start(*args)
+    run = start(scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip, bool(density_correction))
     frames3, front, stats = run.execute(progress)
     t_sim = time.perf_counter()
     silhouettes = None
@@ -151,6 +143,21 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)
     return Simulation(frame_times(), frames3, silhouettes, front, stats)
+
+
+def runner(dim: int, precision: str = "f32"):
+    """``(start, engine, tasks)`` for the engine that ``mpm.runtime`` chooses for ``precision``: ``start(scene, eta,
+    n, sigma_y, yue, slip_m=0.0, density_correction=False, body=None)`` makes a run whose ``execute(progress)``
+    returns (frames, front, stats); ``engine`` names it ("native", "taichi-cpu" or "cuda"); ``tasks``: its threads
+    (Taichi: its grid copies). ValueError (one line) for an unknown or unavailable engine."""
+    name = runtime.engine_for(precision, say=True)
+    if name == "native":
+        from mpm import native_engine
+
+        tasks = runtime.threads()
+        return functools.partial(native_engine.NativeRun, threads=tasks), name, tasks
+    eng = engine(dim, precision)
+    return functools.partial(_Run, eng), name, eng.tasks
 
 
 class _Run:
