@@ -46,10 +46,13 @@ def test_simulate_against_footage_writes_consistent_outputs(shared_data, tmp_pat
                           capture_output=True, text=True, timeout=600, cwd=REPO)
     assert proc.returncode == 0, proc.stderr[-2000:]
     noise = proc.stdout + proc.stderr
-    assert "Taichi" not in noise and "libcuda" not in noise  # no start-up noise on a CPU user's terminal
+    assert "[Taichi]" not in noise and "libcuda" not in noise  # no start-up noise on a CPU user's terminal
     lines = proc.stdout.splitlines()  # the progress bar's last state, the loss, the runout: nothing else
     assert len(lines) == 3 and lines[0].startswith("simulating 30x20 mm") and lines[1].startswith("loss (eq. 3")
     summary = json.loads((out / "summary.json").read_text())
+    from mpm import runtime
+
+    assert summary["stats"]["arch"] == runtime.engine_name()  # the engine that ran, as $VIRHEO_ARCH chose it
     assert summary["setup"] == {"width_mm": 30.0, "height_mm": 20.0}
     assert abs(summary["density_kg_m3"] - 1200.0) < 1e-9
     # the runout grows over time and exceeds the initial width (this material flows)

@@ -172,6 +172,15 @@ def test_high_yield_stress_never_yields():
     assert np.array_equal(c.return_mapping_np(be_trial, be_old, MU, eta, n, sy, dt), be_trial)
 
 
+def _check_f32(out32, pl32, flags, be_trial, ref, sy, flow_rule):
+    clear = np.abs(c.yield_function(c.cauchy_stress(be_trial, KAPPA, MU), sy, flow_rule)) > 1e-2
+    assert np.array_equal(pl32[clear], flags[clear])
+    assert rel_diff(out32, ref).max() < 1e-5  # f32: ~3e-7 measured
+    # f32 stress: the deviator is a difference of O(1) numbers, so compare in Pa
+    dstress = np.abs(c.cauchy_stress(out32, KAPPA, MU) - c.cauchy_stress(ref, KAPPA, MU)).max()
+    assert dstress < 0.05
+
+
 @pytest.mark.parametrize("flow_rule", ["paper", "yue2015"])
 def test_taichi_return_mapping_equals_numpy(flow_rule):
     be_trial, be_old, eta, n, sy, dt = random_states(1000, seed=1)
@@ -183,12 +192,27 @@ def test_taichi_return_mapping_equals_numpy(flow_rule):
     assert np.allclose(np.linalg.det(out64), np.linalg.det(be_trial), rtol=1e-7, atol=0)
     out32, pl32, _ = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule,
                                              dtype=np.float32)
-    clear = np.abs(c.yield_function(c.cauchy_stress(be_trial, KAPPA, MU), sy, flow_rule)) > 1e-2
-    assert np.array_equal(pl32[clear], flags[clear])
-    assert rel_diff(out32, ref).max() < 1e-5  # f32: ~3e-7 measured
-    # f32 stress: the deviator is a difference of O(1) numbers, so compare in Pa
-    dstress = np.abs(c.cauchy_stress(out32, KAPPA, MU) - c.cauchy_stress(ref, KAPPA, MU)).max()
-    assert dstress < 0.05
+    _check_f32(out32, pl32, flags, be_trial, ref, sy, flow_rule)
+
+
+@pytest.mark.parametrize("flow_rule", ["paper", "yue2015"])
+def test_native_return_mapping_equals_numpy(flow_rule):
+    """The native engine's return mapping (f32 only) against numpy, as Taichi's f32 one."""
+    native = _native_engine()
+    be_trial, be_old, eta, n, sy, dt = random_states(1000, seed=1)
+    ref = c.return_mapping_np(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule)
+    flags = c.is_plastic_np(be_trial, MU, sy, flow_rule)
+    out32, pl32, _ = native.return_mapping(be_trial, be_old, MU, eta, n, sy, dt, flow_rule=flow_rule)
+    _check_f32(out32, pl32, flags, be_trial, ref, sy, flow_rule)
+
+
+def _native_engine():
+    import engines
+
+    engines.require("native")
+    from mpm import native_engine
+
+    return native_engine
 
 
 @ti.kernel
@@ -209,20 +233,28 @@ def test_taichi_kirchhoff_stress_equals_numpy():
     assert np.abs(out - ref).max() < 1e-6 * np.abs(ref).max()
 
 
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
-def test_warm_started_newton_solve_reaches_the_same_root(dtype):
+@pytest.mark.parametrize("engine, dtype", [("taichi-cpu", np.float64), ("taichi-cpu", np.float32),
+                                           ("native", np.float32)])
+def test_warm_started_newton_solve_reaches_the_same_root(engine, dtype):
     """The MPM kernel starts the Newton solve of eq. 57 from the particle's last log(e): from below the
     root (the first step lands above it) or above it, near or far, the result is the cold-started one."""
+    if engine == "native":
+        native = _native_engine()
+
+        def mapping(*args, log_e0=c.NO_WARM_START):
+            return native.return_mapping(*args, log_e0=log_e0)
+    else:
+        def mapping(*args, log_e0=c.NO_WARM_START):
+            return c.return_mapping_taichi(*args, dtype=dtype, log_e0=log_e0)
     be_trial, be_old, eta, n, sy, dt = random_states(1000, seed=3)
-    cold, plastic, log_e = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, dtype=dtype)
+    cold, plastic, log_e = mapping(be_trial, be_old, MU, eta, n, sy, dt)
     assert plastic.sum() > 300 and np.isfinite(log_e[plastic]).all() and np.isnan(log_e[~plastic]).all()
     e = np.exp(log_e[plastic])
     assert np.all(e > 0)
     root = np.where(plastic, log_e, 0.0)
     tol = 1e-8 if dtype == np.float64 else 2e-6  # the solve stops within ~1e-9 of the root (NEWTON_TOL)
     for shift in (-3.0, -0.3, -1e-3, 1e-3, 0.3, 3.0):
-        warm, plastic_w, log_w = c.return_mapping_taichi(be_trial, be_old, MU, eta, n, sy, dt, dtype=dtype,
-                                                         log_e0=root + shift)
+        warm, plastic_w, log_w = mapping(be_trial, be_old, MU, eta, n, sy, dt, log_e0=root + shift)
         assert np.array_equal(plastic_w, plastic)
         assert rel_diff(warm, cold).max() < tol
         assert np.abs(log_w[plastic] - log_e[plastic]).max() < 100 * tol

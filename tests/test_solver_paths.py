@@ -1,6 +1,7 @@
-"""The solver's three CPU code paths simulate the same flow: one thread (a quarter frame per kernel launch), several
-threads (a grid copy per thread, summed in the grid update) and atomic adds into one grid (the CUDA path, forced on
-the CPU with VIRHEO_MPM_ATOMIC=1). Taichi fixes its thread count per process, so each path runs in its own."""
+"""The Taichi solver's three CPU code paths (VIRHEO_ARCH=taichi-cpu) simulate the same flow: one thread (a quarter
+frame per kernel launch), several threads (a grid copy per thread, summed in the grid update) and atomic adds into
+one grid (the CUDA path, forced on the CPU with VIRHEO_MPM_ATOMIC=1). Taichi fixes its thread count per process, so
+each path runs in its own."""
 import json
 import os
 import subprocess
@@ -22,7 +23,7 @@ print(json.dumps({"front": s.front_m.tolist(), "tasks": s.stats["tasks"], "last"
 
 def run_path(**env) -> dict:
     proc = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, cwd=REPO, timeout=300,
-                          env={**os.environ, "VIRHEO_ARCH": "cpu", "VIRHEO_MPM_ATOMIC": "0", **env})
+                          env={**os.environ, "VIRHEO_ARCH": "taichi-cpu", "VIRHEO_MPM_ATOMIC": "0", **env})
     assert proc.returncode == 0, proc.stderr[-2000:]
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
@@ -73,6 +74,6 @@ def test_every_stencil_lies_inside_the_grid_window():
     window's bounding box and the transfers round that expression differently, a transfer writes one node row
     in front of the grid (a segmentation fault, or silently corrupted memory)."""
     proc = subprocess.run([sys.executable, "-c", BOUNDS_SCRIPT], capture_output=True, text=True, cwd=REPO,
-                          timeout=600, env={**os.environ, "VIRHEO_ARCH": "cpu", "VIRHEO_THREADS": "1"})
+                          timeout=600, env={**os.environ, "VIRHEO_ARCH": "taichi-cpu", "VIRHEO_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "first frame inside the grid" in proc.stdout
