@@ -87,3 +87,54 @@ def test_dask_local_cluster_matches_local(tmp_path):
             via_executor = batch.evaluate_losses(jobs, store=Store(tmp_path / "c"), executor=client.get_executor())
     assert np.array_equal(local, via_client) and np.array_equal(local, via_executor)
     assert local[0] == 0.0 and np.all(local[1:] > 0)
+
+
+def test_requests_name_the_engine_that_simulates_them(monkeypatch):
+    """request_for records $VIRHEO_ARCH's engine in the request (its key): results of one engine never stand in for
+    another's. f64 runs on taichi-cpu whichever CPU engine is chosen."""
+    from mpm import runtime
+
+    monkeypatch.setattr(runtime, "native_missing", lambda: None)  # as if built, wherever this runs
+    keys = {}
+    for arch, f32, f64 in (("taichi-cpu", "taichi-cpu", "taichi-cpu"), ("native", "native", "taichi-cpu"),
+                           ("cpu", "native", "taichi-cpu")):
+        monkeypatch.setenv("VIRHEO_ARCH", arch)
+        req = _requests(n=1)[0]
+        assert req.engine == f32 and req.to_dict()["engine"] == f32
+        assert batch.request_for(Material(1.0, 0.5, 2.0), Setup(30, 40), density=1000.0, precision="f64",
+                                 simulator=SIM).engine == f64
+        keys[arch] = req.key
+    assert keys["taichi-cpu"] != keys["native"] == keys["cpu"]
+    monkeypatch.setenv("VIRHEO_ARCH", "gpu")
+    with pytest.raises(ValueError, match="VIRHEO_ARCH") as e:
+        _requests(n=1)
+    assert "\n" not in str(e.value)
+
+
+def test_a_worker_on_another_engine_refuses_the_request(monkeypatch):
+    """A worker whose VIRHEO_ARCH chooses another engine than the requester's (a dask worker set up differently)
+    says so in one line instead of storing one engine's result under another's key."""
+    from dataclasses import replace
+
+    monkeypatch.setenv("VIRHEO_ARCH", "taichi-cpu")
+    req = replace(_requests(batch.DEFAULT_SIMULATOR, n=1)[0], engine="native")
+    with pytest.raises(ValueError, match="requested for the native engine would run on taichi-cpu") as e:
+        batch.run_one(req)
+    assert "\n" not in str(e.value)
+
+
+def test_code_version_covers_the_native_sources(tmp_path, monkeypatch):
+    """Editing a native source (any file under mpm/native/ but build outputs) changes the MPM simulator's version."""
+    listed = batch.native_sources()
+    assert all(p.suffix not in (".o", ".so") for p in listed)
+    assert {p.suffix for p in listed} >= ({".cpp", ".h"} if listed else set())
+    src = tmp_path / "kernel.h"
+    src.write_text("// one\n")
+    monkeypatch.setattr(batch, "native_sources", lambda: listed + [src])
+    versions = []
+    for text in ("// one\n", "// two\n"):
+        src.write_text(text)
+        monkeypatch.setattr(batch, "_VERSIONS", {})
+        versions.append(batch.code_version(batch.DEFAULT_SIMULATOR))
+    assert versions[0] != versions[1]
+    assert "native_engine.py" not in batch._NOT_SIMULATION  # its driver is hashed with the other mpm/*.py

@@ -25,8 +25,29 @@ def test_key_is_stable_and_sensitive_to_every_field():
                    dict(density=1000.0), dict(depth_mm=41.5), dict(camera='{"fov_deg":36.1}'), dict(cell_mm=2.5),
                    dict(ppc=2),
                    dict(dim=2), dict(flow_rule="yue"), dict(precision="f64"), dict(image_size=(480, 270)),
-                   dict(simulator="x:y"), dict(code_version="v2")):
+                   dict(simulator="x:y"), dict(code_version="v2"), dict(engine="native")):
         assert _req(**change).key != r.key, change
+    assert _req(engine="native").key != _req(engine="taichi-cpu").key
+
+
+def test_a_request_stored_before_engines_loads_keeps_its_key_and_matches_no_new_request(tmp_path):
+    """A request written before requests named their engine (no "engine" field) reads back with engine "", under
+    the key it was stored with (so that an index rebuilt from the array files finds it); a request naming any
+    engine differs from it, so no engine is served another's, or an unknown engine's, results."""
+    from mpm.files import digest
+
+    old = {k: v for k, v in _req().to_dict().items() if k != "engine"}
+    loaded = SimRequest.from_dict(old)
+    assert loaded.engine == "" and loaded.key == digest(old)
+    store = Store(tmp_path)
+    store.put(loaded, SimResult(None, np.zeros(8), np.arange(1, 9) / 24, {"steps": 1}))
+    for engine in ("native", "taichi-cpu", "cuda"):
+        assert store.get(_req(engine=engine)) is None
+    store.close()
+    (tmp_path / "index.sqlite").unlink()  # the index rebuilt from the array file finds the old request again
+    with pytest.warns(UserWarning, match="rebuilt from 1 intact"):
+        rebuilt = Store(tmp_path)
+    assert rebuilt.get(loaded).stats == {"steps": 1} and rebuilt.requests() == [loaded]
 
 
 def test_pack_round_trip():
