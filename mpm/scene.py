@@ -157,6 +157,21 @@ class DamBreak:
             hidden = np.where(in_xy, in_z, hidden)
         return frozen, hidden
 
+    def visible_positions(self, positions: np.ndarray, hidden: np.ndarray) -> np.ndarray:
+        """(N, 3) positions of the visible particles; in 2D (plane strain) the section is extruded over the 3D
+        particle layers in z (the near-wall layer excluded)."""
+        p = np.asarray(positions, float)[~np.asarray(hidden, bool)]
+        if self.dim == 3:
+            return p
+        s, o = self.spacing_m, self.overlap_m
+        nz = int(math.ceil((self.depth_m + 2 * o) / s - 1e-9))
+        zs = -o + s * (np.arange(nz) + 0.5)
+        zs = zs[zs <= self.depth_m]
+        out = np.empty((len(p) * len(zs), 3))
+        out[:, :2] = np.repeat(p, len(zs), axis=0)
+        out[:, 2] = np.tile(zs, len(p))
+        return out
+
     # --- time stepping and reach ---
     @property
     def wave_speed(self) -> float:

@@ -1,0 +1,254 @@
+// mpm._native: the native CPU engine of the MPM dam-break (kernel.h), one build per instruction set chosen
+// at run time from the CPU's features, so that a build moved to an older CPU runs its generic path.
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "types.h"
+
+#if defined(__x86_64__) || defined(_M_X64)
+#define VIRHEO_X86 1
+#endif
+
+#if VIRHEO_X86 && (defined(__GNUC__) || defined(__clang__))
+#if defined(__clang__)
+#pragma clang attribute push(__attribute__((target("avx512f,avx512vl,avx512dq,avx512bw,avx2,fma,bmi2"))), \
+                             apply_to = function)
+#else
+#pragma GCC push_options
+#pragma GCC target("avx512f,avx512vl,avx512dq,avx512bw,avx2,fma,bmi2,prefer-vector-width=512")
+#endif
+#define VIRHEO_ISA isa_avx512
+#include "kernel.h"
+#undef VIRHEO_ISA
+#if defined(__clang__)
+#pragma clang attribute pop
+#pragma clang attribute push(__attribute__((target("avx2,fma,bmi2"))), apply_to = function)
+#else
+#pragma GCC pop_options
+#pragma GCC push_options
+#pragma GCC target("avx2,fma,bmi2")
+#endif
+#define VIRHEO_ISA isa_avx2
+#include "kernel.h"
+#undef VIRHEO_ISA
+#if defined(__clang__)
+#pragma clang attribute pop
+#else
+#pragma GCC pop_options
+#endif
+#define VIRHEO_HAVE_X86_PATHS 1
+#endif
+
+#define VIRHEO_ISA isa_generic
+#include "kernel.h"
+#undef VIRHEO_ISA
+
+namespace {
+
+// the instruction sets this CPU runs, best first
+std::vector<std::string> supported_isas() {
+    std::vector<std::string> out;
+#ifdef VIRHEO_HAVE_X86_PATHS
+    __builtin_cpu_init();
+    if (__builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512vl") &&
+        __builtin_cpu_supports("avx512dq") && __builtin_cpu_supports("avx512bw") && __builtin_cpu_supports("fma"))
+        out.push_back("avx512");
+    if (__builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma") && __builtin_cpu_supports("bmi2"))
+        out.push_back("avx2");
+#endif
+    out.push_back("generic");
+    return out;
+}
+
+bool isa_ok(const std::string& isa) {
+    for (auto& s : supported_isas())
+        if (s == isa) return true;
+    return false;
+}
+
+struct Buffer {
+    Py_buffer view{};
+    bool held = false;
+    ~Buffer() {
+        if (held) PyBuffer_Release(&view);
+    }
+};
+
+// a contiguous buffer of at least `count` items of `itemsize` bytes (writable if asked)
+bool get_buffer(PyObject* obj, Buffer& b, Py_ssize_t itemsize, Py_ssize_t count, bool writable, const char* name) {
+    int flags = PyBUF_C_CONTIGUOUS | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, &b.view, flags) != 0) return false;
+    b.held = true;
+    if (b.view.len < itemsize * count) {
+        PyErr_Format(PyExc_ValueError, "%s: buffer of %zd bytes, need %zd", name, b.view.len, itemsize * count);
+        return false;
+    }
+    return true;
+}
+
+struct ProgressCtx {
+    PyObject* callback;
+    PyThreadState** saved;
+};
+
+int call_progress(void* ctx, int frame) {
+    auto* c = static_cast<ProgressCtx*>(ctx);
+    PyEval_RestoreThread(*c->saved);
+    int stop = 0;
+    if (PyErr_CheckSignals() != 0) {
+        stop = 1;
+    } else if (c->callback != Py_None) {
+        PyObject* r = PyObject_CallFunction(c->callback, "i", frame);
+        if (!r) stop = 1;
+        Py_XDECREF(r);
+    }
+    *c->saved = PyEval_SaveThread();
+    return stop;
+}
+
+// simulate(pos, flags, fparams, iparams, boxes, lim, frame_times, out_x, out_flags, out_meanj, out_mass,
+//          progress, isa) -> (error, error_value, steps, dt_min, dt_max, vmax_seen, sorts, refills)
+PyObject* py_simulate(PyObject*, PyObject* args) {
+    PyObject *o_pos, *o_flags, *o_fp, *o_ip, *o_boxes, *o_lim, *o_times, *o_x, *o_f, *o_j, *o_m, *progress;
+    const char* isa;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOs", &o_pos, &o_flags, &o_fp, &o_ip, &o_boxes, &o_lim, &o_times, &o_x,
+                          &o_f, &o_j, &o_m, &progress, &isa))
+        return nullptr;
+    Buffer ip, fp;
+    if (!get_buffer(o_ip, ip, 4, 8, false, "iparams") || !get_buffer(o_fp, fp, 8, 24, false, "fparams")) return nullptr;
+    const int* I = static_cast<const int*>(ip.view.buf);
+    const double* Fp = static_cast<const double*>(fp.view.buf);
+    int dim = I[0], n = I[6], frames = I[7];
+    if ((dim != 2 && dim != 3) || n <= 0 || frames <= 0) {
+        PyErr_SetString(PyExc_ValueError, "native engine: dim must be 2 or 3 and the scene must hold particles");
+        return nullptr;
+    }
+    if (!isa_ok(isa)) {
+        PyErr_Format(PyExc_ValueError, "native engine: this CPU does not run the %s path", isa);
+        return nullptr;
+    }
+    Buffer pos, fl, bx, lim, times, ox, of, oj, om;
+    if (!get_buffer(o_pos, pos, 8, (Py_ssize_t)n * dim, false, "positions") ||
+        !get_buffer(o_flags, fl, 4, n, false, "flags") || !get_buffer(o_boxes, bx, 8, 24, false, "boxes") ||
+        !get_buffer(o_lim, lim, 4, 6, false, "lim") || !get_buffer(o_times, times, 8, frames, false, "frame_times") ||
+        !get_buffer(o_x, ox, 4, (Py_ssize_t)frames * n * dim, true, "out_x") ||
+        !get_buffer(o_f, of, 1, (Py_ssize_t)frames * n, true, "out_flags") ||
+        !get_buffer(o_j, oj, 8, frames, true, "out_mean_j") || !get_buffer(o_m, om, 8, frames, true, "out_grid_mass"))
+        return nullptr;
+    virheo::Params P{};
+    P.dim = dim, P.yue = I[1], P.dens = I[2], P.slipping = I[3], P.threads = I[4], P.substeps = I[5];
+    P.n_frames = frames;
+    float* fdst[] = {&P.dx, &P.mp, &P.vol, &P.kappa, &P.mu, &P.eta, &P.n, &P.sy, &P.body[0], &P.body[1],
+                     &P.body[2], &P.zmid, &P.lh, &P.slip, &P.newton_tol, &P.no_warm_start};
+    for (int i = 0; i < 16; i++) *fdst[i] = (float)Fp[i];
+    P.cfl = Fp[16], P.wave_speed = Fp[17], P.gravity = Fp[18], P.speed_limit = Fp[19], P.fps = Fp[20];
+    P.newton_iterations = (int)Fp[21];
+    const double* B = static_cast<const double*>(bx.view.buf);
+    for (int b = 0; b < 4; b++)
+        for (int s = 0; s < 2; s++)
+            for (int a = 0; a < 3; a++) P.boxes[b][s][a] = (float)B[(b * 2 + s) * 3 + a];
+    std::memcpy(P.lim, lim.view.buf, sizeof(P.lim));
+    P.frame_times = static_cast<const double*>(times.view.buf);
+    virheo::Outputs out{static_cast<float*>(ox.view.buf), static_cast<unsigned char*>(of.view.buf),
+                             static_cast<double*>(oj.view.buf), static_cast<double*>(om.view.buf)};
+    const double* ppos = static_cast<const double*>(pos.view.buf);
+    const int* pflags = static_cast<const int*>(fl.view.buf);
+    std::string which(isa);
+    PyThreadState* saved = nullptr;
+    ProgressCtx ctx{progress, &saved};
+    virheo::Result r;
+    saved = PyEval_SaveThread();
+    try {
+#ifdef VIRHEO_HAVE_X86_PATHS
+        if (which == "avx512")
+            r = isa_avx512::simulate(P, ppos, pflags, n, out, call_progress, &ctx);
+        else if (which == "avx2")
+            r = isa_avx2::simulate(P, ppos, pflags, n, out, call_progress, &ctx);
+        else
+#endif
+            r = isa_generic::simulate(P, ppos, pflags, n, out, call_progress, &ctx);
+    } catch (const std::bad_alloc&) {
+        PyEval_RestoreThread(saved);
+        PyErr_SetString(PyExc_MemoryError, "native engine: out of memory");
+        return nullptr;
+    }
+    PyEval_RestoreThread(saved);
+    if (r.error == 4) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_KeyboardInterrupt, "");
+        return nullptr;
+    }
+    return Py_BuildValue("(idlddd ll)", r.error, r.error_value, r.steps, r.dt_min, r.dt_max, r.vmax_seen, r.sorts,
+                         r.refills);
+}
+
+// return_mapping(be_trial, be_old, par, yue, iterations, newton_tol, no_warm_start, out, plastic, log_e, isa)
+PyObject* py_return_mapping(PyObject*, PyObject* args) {
+    PyObject *o_bt, *o_bo, *o_par, *o_out, *o_pl, *o_le;
+    int yue, iterations;
+    double tol, nws;
+    const char* isa;
+    if (!PyArg_ParseTuple(args, "OOOpiddOOOs", &o_bt, &o_bo, &o_par, &yue, &iterations, &tol, &nws, &o_out, &o_pl,
+                          &o_le, &isa))
+        return nullptr;
+    if (!isa_ok(isa)) {
+        PyErr_Format(PyExc_ValueError, "native engine: this CPU does not run the %s path", isa);
+        return nullptr;
+    }
+    Buffer bt, bo, par, out, pl, le;
+    if (!get_buffer(o_pl, pl, 4, 0, true, "plastic")) return nullptr;
+    Py_ssize_t n = pl.view.len / 4;
+    if (!get_buffer(o_bt, bt, 4, n * 9, false, "be_trial") || !get_buffer(o_bo, bo, 4, n * 9, false, "be_old") ||
+        !get_buffer(o_par, par, 4, n * 6, false, "par") || !get_buffer(o_out, out, 4, n * 9, true, "out") ||
+        !get_buffer(o_le, le, 4, n, true, "log_e"))
+        return nullptr;
+    auto args_of = [&](auto fn) {
+        fn(static_cast<const float*>(bt.view.buf), static_cast<const float*>(bo.view.buf),
+           static_cast<const float*>(par.view.buf), (int)n, yue, iterations, (float)tol, (float)nws,
+           static_cast<float*>(out.view.buf), static_cast<int*>(pl.view.buf), static_cast<float*>(le.view.buf));
+    };
+    std::string which(isa);
+#ifdef VIRHEO_HAVE_X86_PATHS
+    if (which == "avx512")
+        args_of(isa_avx512::return_mapping_batch);
+    else if (which == "avx2")
+        args_of(isa_avx2::return_mapping_batch);
+    else
+#endif
+        args_of(isa_generic::return_mapping_batch);
+    Py_RETURN_NONE;
+}
+
+PyObject* py_isas(PyObject*, PyObject*) {
+    auto isas = supported_isas();
+    PyObject* list = PyList_New((Py_ssize_t)isas.size());
+    for (size_t i = 0; i < isas.size(); i++) PyList_SET_ITEM(list, i, PyUnicode_FromString(isas[i].c_str()));
+    return list;
+}
+
+PyObject* py_compiled(PyObject*, PyObject*) {
+#ifdef VIRHEO_HAVE_X86_PATHS
+    return Py_BuildValue("[sss]", "avx512", "avx2", "generic");
+#else
+    return Py_BuildValue("[s]", "generic");
+#endif
+}
+
+PyMethodDef methods[] = {
+    {"simulate", py_simulate, METH_VARARGS, "Run a whole dam-break simulation (see mpm/native_engine.py)."},
+    {"return_mapping", py_return_mapping, METH_VARARGS, "The return mapping of eq. 57 over a batch."},
+    {"isas", py_isas, METH_NOARGS, "Instruction-set paths this CPU runs, best first."},
+    {"compiled", py_compiled, METH_NOARGS, "Instruction-set paths compiled into this build."},
+    {nullptr, nullptr, 0, nullptr}};
+
+PyModuleDef module = {PyModuleDef_HEAD_INIT, "_native", "Native CPU engine of the MPM dam-break.", -1, methods};
+
+}  // namespace
+
+PyMODINIT_FUNC PyInit__native(void) { return PyModule_Create(&module); }

@@ -1,0 +1,30 @@
+// Values passed between the Python driver (mpm/native_engine.py) and every instruction-set build of kernel.h.
+#pragma once
+
+namespace virheo {
+
+struct Params {
+    int dim, yue, dens, slipping, threads, substeps, n_frames, newton_iterations;
+    float dx, mp, vol, kappa, mu, eta, n, sy, body[3], zmid, lh, slip, newton_tol, no_warm_start;
+    double cfl, wave_speed, gravity, speed_limit, fps;
+    float boxes[4][2][3];
+    int lim[6];
+    const double* frame_times;
+};
+
+struct Outputs {
+    float* frames_x;  // (frames, N, dim) in the input order
+    unsigned char* frames_flags;  // (frames, N)
+    double* mean_j;  // (frames,) mean sqrt(det b_e) of the moving particles
+    double* grid_mass;  // (frames,) mass on the last grid of the frame
+};
+
+struct Result {
+    int error = 0;  // 1 NaN position, 2 left the reachable region, 3 speed limit, 4 interrupted
+    double error_value = 0, dt_min = 1e300, dt_max = 0, vmax_seen = 0;
+    long steps = 0, sorts = 0, refills = 0;
+};
+
+typedef int (*ProgressFn)(void* ctx, int frame);  // nonzero: stop
+
+}  // namespace virheo

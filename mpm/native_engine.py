@@ -1,0 +1,172 @@
+"""The native CPU engine (``mpm._native``, C++ in mpm/native/): a whole dam-break in one call.
+
+It runs the physics of the Taichi step (``mpm.kernels``): the same scene, constants, flow rules, walls, density
+correction and time-step schedule, in float32, vectorised for the CPU it runs on (AVX-512, AVX2 or a generic
+path, chosen at run time; ``$VIRHEO_NATIVE_ISA`` forces one, for testing). Its agreement with the Taichi engine
+is measured by bench/bench_engine_agreement.py (docs/performance.md). Importing this module does not import
+Taichi (a simulation imports mpm.constitutive for its constants, which does, without starting it). ``mpm.runtime`` decides which engine runs.
+"""
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import numpy as np
+
+from mpm.params import FPS, N_FRAMES, frame_times
+
+try:
+    from mpm import _native
+    _IMPORT_ERROR = None
+except ImportError as exc:  # not built: no compiler at install time
+    _native = None
+    _IMPORT_ERROR = exc
+
+HIDDEN, PLASTIC, FROZEN = 1, 2, 4  # particle flag bits, as in mpm.kernels
+ERRORS = {1: "a particle position became NaN", 2: "particles left the region the flow can reach"}
+_SAID = {"isa": False}
+
+
+def available() -> bool:
+    """True when the compiled extension is importable."""
+    return _native is not None
+
+
+def why_unavailable() -> str:
+    """One line: why the native engine cannot run ('' when it can)."""
+    if _native is not None:
+        return ""
+    return (f"the native engine (mpm._native) is not built ({_IMPORT_ERROR}); reinstall with a C++ compiler "
+            "(pip install -e .)")
+
+
+def isa() -> str:
+    """The SIMD path this CPU runs: ``$VIRHEO_NATIVE_ISA`` if set, else the best one it supports."""
+    if _native is None:
+        raise ValueError(why_unavailable())
+    runs = _native.isas()
+    want = os.environ.get("VIRHEO_NATIVE_ISA", "").strip().lower()
+    if want:
+        if want not in _native.compiled():
+            raise ValueError(f"VIRHEO_NATIVE_ISA must be one of {', '.join(_native.compiled())}, got {want!r}")
+        if want not in runs:
+            raise ValueError(f"VIRHEO_NATIVE_ISA={want}: this CPU runs only {', '.join(runs)}")
+        return want
+    best = runs[0]
+    compiled = _native.compiled()
+    if best != compiled[0] and not _SAID["isa"]:
+        _SAID["isa"] = True
+        print(f"virheometry: this CPU lacks the {compiled[0]} instructions the native engine was built for; "
+              f"running its {best} path", file=sys.stderr)
+    return best
+
+
+def _simulation_error(message: str):
+    from mpm.solver import SimulationError  # the one exception type of a blown-up simulation
+
+    return SimulationError(message)
+
+
+class NativeRun:
+    """One simulation on the native engine; ``execute`` has the contract of ``mpm.solver._Run.execute``."""
+
+    def __init__(self, scene, eta, n, sigma_y, yue: bool, slip_m: float = 0.0, density_correction: bool = False,
+                 body=None, threads: int = 1):
+        if _native is None:
+            raise ValueError(why_unavailable())
+        self.scene = scene
+        self.eta, self.n, self.sigma_y, self.yue = float(eta), float(n), float(sigma_y), bool(yue)
+        self.slip_m = float(slip_m)
+        self.density_correction = bool(density_correction)
+        self.body = (0.0, -scene.gravity, 0.0) if body is None else tuple(float(b) for b in body) + (0.0,) * 3
+        self.threads = max(1, int(threads))
+        self.isa = isa()
+
+    def _params(self, cfl: float):
+        from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START
+
+        s = self.scene
+        fp = np.zeros(24, np.float64)
+        fp[:22] = (s.cell_m, s.particle_mass, s.particle_volume, s.kappa, s.mu, self.eta, self.n, self.sigma_y,
+                   self.body[0], self.body[1], self.body[2], s.plane_z_m, s.half_length_m / s.cell_m, self.slip_m,
+                   NEWTON_TOL, NO_WARM_START, cfl, s.wave_speed, s.gravity, s.speed_limit, FPS, NEWTON_ITERATIONS)
+        return fp
+
+    def execute(self, progress=None):
+        from mpm import solver  # the schedule's constants live there (tests may change CFL)
+
+        s = self.scene
+        d = s.dim
+        pos = np.ascontiguousarray(s.particles(), np.float64)
+        count = len(pos)
+        _, hidden0 = s.frozen_and_hidden(pos)
+        flags0 = np.where(hidden0, HIDDEN, 0).astype(np.int32)
+        lo, hi = s.reach()
+        lim = np.zeros(6, np.int32)
+        lim[:d] = np.floor(lo / s.cell_m) - 1
+        lim[3:3 + d] = np.ceil(hi / s.cell_m) + 1
+        times = np.ascontiguousarray(frame_times(), np.float64)
+        ip = np.array([d, self.yue, self.density_correction, self.slip_m > 0, self.threads,
+                       solver.SUBSTEPS_PER_FRAME, count, N_FRAMES], np.int32)
+        out_x = np.empty((N_FRAMES, count, d), np.float32)
+        out_flags = np.empty((N_FRAMES, count), np.uint8)
+        out_j = np.zeros(N_FRAMES)
+        out_mass = np.zeros(N_FRAMES)
+        callback = None if progress is None else (lambda k: progress(k, N_FRAMES))
+        error, value, steps, dt_min, dt_max, vmax_seen, sorts, refills = _native.simulate(
+            pos, flags0, self._params(solver.CFL), ip,
+            np.ascontiguousarray(s.boxes(), np.float64), lim, times, out_x, out_flags, out_j, out_mass, callback,
+            self.isa)
+        if error == 3:
+            raise _simulation_error(f"simulation blew up: speed {value:.3g} m/s exceeds {s.speed_limit:.3g} m/s")
+        if error:
+            raise _simulation_error(f"simulation blew up: {ERRORS.get(error, 'unknown error')}")
+        m_total = count * s.particle_mass
+        frames3, front, visible = [], [], []
+        for k in range(N_FRAMES):
+            x = out_x[k].astype(np.float64)
+            hidden = (out_flags[k] & HIDDEN) != 0
+            moving = (out_flags[k] & FROZEN) == 0
+            frames3.append(s.visible_positions(x, hidden))
+            visible.append(int((~hidden).sum()))
+            front.append(float(x[moving, 0].max()) if moving.any() else 0.0)
+        final = out_flags[-1]
+        stats = dict(
+            n_particles=count, steps=int(steps), dt_min=float(dt_min), dt_max=float(dt_max),
+            max_speed=float(vmax_seen), plastic_count=int(((final & PLASTIC) != 0).sum()), mean_J=out_j.tolist(),
+            mass_kg=m_total, grid_mass_rel_err=float(np.max(np.abs(out_mass - m_total)) / m_total),
+            n_visible=visible, wave_speed=s.wave_speed, spacing_m=s.spacing_m, grid_capacity=0,
+            frozen_count=int(((final & FROZEN) != 0).sum()), isa=self.isa, sorts=int(sorts),
+            window_refills=int(refills),
+        )
+        return frames3, np.array(front), stats
+
+
+def return_mapping(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rule: str = "paper", log_e0=None):
+    """The native engine's return mapping over a batch: the contract of
+    ``mpm.constitutive.return_mapping_taichi`` (float32). Returns (new b_e as float64, plastic flags, log of the
+    excess stress where plastic, else NaN)."""
+    from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START
+    from mpm.params import check_flow_rule
+
+    log_e0 = NO_WARM_START if log_e0 is None else log_e0
+
+    if _native is None:
+        raise ValueError(why_unavailable())
+    yue = check_flow_rule(flow_rule) == "yue2015"
+    be = np.ascontiguousarray(np.asarray(be_trial, np.float32).reshape(-1, 3, 3))
+    batch = np.shape(be_trial)[:-2]
+    old = np.ascontiguousarray(np.broadcast_to(np.asarray(be_old), np.shape(be_trial)).reshape(-1, 3, 3), np.float32)
+    par = np.stack([np.broadcast_to(np.asarray(v, dtype=float), batch).reshape(-1)
+                    for v in (mu, eta, n, sigma_y, dt, log_e0)], axis=1).astype(np.float32)
+    out = np.zeros_like(be)
+    plastic = np.zeros(len(be), np.int32)
+    log_e = np.zeros(len(be), np.float32)
+    _native.return_mapping(be, old, np.ascontiguousarray(par), yue, NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START,
+                           out, plastic, log_e, isa())
+    flags = plastic.astype(bool)
+    return (out.astype(np.float64).reshape(np.shape(be_trial)), flags.reshape(batch),
+            np.where(flags, log_e.astype(np.float64), np.nan).reshape(batch))
+
+
