@@ -21,7 +21,7 @@ def require(name: str) -> str:
         if why is not None:
             if os.environ.get("VIRHEO_REQUIRE_NATIVE") == "1":
                 pytest.fail(f"VIRHEO_REQUIRE_NATIVE=1 but the native engine is not available: {why}")
-            pytest.skip(f"the native engine is not built ({why}): .venv/bin/pip install -e . builds it")
+            pytest.skip(f"native engine unavailable: {why}")
     return name
 
 

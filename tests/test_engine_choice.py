@@ -21,7 +21,7 @@ def test_the_native_engine_is_built_where_ci_requires_it():
     if why is not None:
         if os.environ.get("VIRHEO_REQUIRE_NATIVE") == "1":
             pytest.fail(f"VIRHEO_REQUIRE_NATIVE=1 but the native engine is not available: {why}")
-        pytest.skip(f"the native engine is not built ({why}); VIRHEO_REQUIRE_NATIVE=1 makes this a failure")
+        pytest.skip(f"native engine unavailable (VIRHEO_REQUIRE_NATIVE=1 makes this a failure): {why}")
     from mpm import native_engine
 
     assert native_engine.available() and native_engine.why_unavailable() == ""
