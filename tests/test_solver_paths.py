@@ -77,3 +77,23 @@ def test_every_stencil_lies_inside_the_grid_window():
                           timeout=600, env={**os.environ, "VIRHEO_ARCH": "taichi-cpu", "VIRHEO_THREADS": "1"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "first frame inside the grid" in proc.stdout
+
+
+def test_native_engine_threads_agree_with_one(monkeypatch):
+    """The native engine's threads (VIRHEO_THREADS, read at each simulation) simulate the serial flow; only the
+    order of float sums may differ."""
+    from types import SimpleNamespace as NS
+
+    import engines
+    from mpm import solver
+
+    monkeypatch.setenv("VIRHEO_ARCH", engines.require("native"))
+    sims = {}
+    for threads in ("1", "2"):
+        monkeypatch.setenv("VIRHEO_THREADS", threads)
+        sims[threads] = solver.simulate(NS(eta=1.0, n=0.8, sigma_y=5.0), NS(width_mm=30, height_mm=20),
+                                        density=1000.0, cell_mm=3.0)
+    assert [s.stats["tasks"] for s in sims.values()] == [1, 2]
+    assert np.allclose(sims["1"].front_m, sims["2"].front_m, rtol=0, atol=1e-5)
+    a, b = sims["1"].frames[-1], sims["2"].frames[-1]
+    assert a.shape == b.shape and np.abs(a - b).max() < 1e-4
