@@ -232,7 +232,24 @@ static const V NODE1 = {0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0};
 static const V NODE2 = {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0};
 static const V COMP[4] = {{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0}, {0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0},
                           {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0}, {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}};
-VH_INLINE float row_sum(V a, int c) { return a[c] + a[4 + c] + a[8 + c]; }
+typedef float V4 __attribute__((vector_size(16)));
+VH_INLINE V4 node_sum(V a) {  // lanes c of nodes 0..2 added: (sum_k a[4k + c])_c
+    return __builtin_shufflevector(a, a, 0, 1, 2, 3) + __builtin_shufflevector(a, a, 4, 5, 6, 7) +
+           __builtin_shufflevector(a, a, 8, 9, 10, 11);
+}
+// lowest and highest value of the live lanes
+VH_INLINE float lane_min(V a, VI live) {
+    V m = sel(live, a, splat(3.0e38f));
+    float r = m[0];
+    for (int i = 1; i < W; i++) r = m[i] < r ? m[i] : r;
+    return r;
+}
+VH_INLINE float lane_max(V a, VI live) {
+    V m = sel(live, a, splat(-3.0e38f));
+    float r = m[0];
+    for (int i = 1; i < W; i++) r = m[i] > r ? m[i] : r;
+    return r;
+}
 
 constexpr int HIDDEN = 1, PLASTIC = 2, FROZEN = 4;
 constexpr int INT_BIG = 2147483647;
@@ -240,6 +257,7 @@ constexpr int INT_BIG = 2147483647;
 struct Window {
     int org[3] = {0, 0, 0}, n[3] = {1, 1, 1}, stride[3] = {0, 0, 1};
     long count = 0;
+    long row[9] = {};  // offsets (floats) of the stencil rows from a stencil's node 0, leading axes in order
 };
 
 template <int D>
@@ -277,6 +295,7 @@ struct Engine {
         NP = (n + W - 1) / W * W;
         T = p.threads < 1 ? 1 : p.threads;
         inv_dx = 1.0f / P.dx;
+        if (T > 1) pool.start(T);
         const float s2 = 1.41421356237309505f, s23 = 0.816496580927726f;
         rule = P.yue ? Rule{1.0f, s23, 2.0f} : Rule{1.0f / s2, 1.0f, s2};
         for (int a = 0; a < D; a++) {
@@ -339,6 +358,8 @@ struct Engine {
         w.stride[D - 1] = 1;
         for (int a = D - 2; a >= 0; a--) w.stride[a] = w.stride[a + 1] * w.n[a + 1];
         w.count = count;
+        for (int j = 0; j < LEADS; j++) w.row[j] = D == 3 ? ((long)(j / 3) * w.stride[0] + (long)(j % 3) * w.stride[1]) * 4
+                                                          : (long)j * w.stride[0] * 4;
         long need = count + 1;  // + the 4th node of the last row
         if (need > cap[g]) {
             cap[g] = need + need / 2;
@@ -349,17 +370,62 @@ struct Engine {
     }
 
     // ---------------------------------------------------------------------------------------------------
-    // threads: particles in T contiguous slices of whole blocks
+    // threads: particles in T contiguous slices of whole blocks, run by a pool that lives as long as the engine
+    struct Pool {
+        int tasks = 1;
+        std::vector<std::thread> workers;
+        std::mutex m;
+        std::condition_variable wake, done;
+        std::function<void(int)> job;
+        long generation = 0;
+        int pending = 0;
+        bool stop = false;
+        void start(int t) {
+            tasks = t;
+            for (int i = 1; i < tasks; i++) workers.emplace_back([this, i] { serve(i); });
+        }
+        void serve(int t) {
+            long seen = 0;
+            for (;;) {
+                std::unique_lock<std::mutex> lk(m);
+                wake.wait(lk, [&] { return stop || generation != seen; });
+                if (stop) return;
+                seen = generation;
+                lk.unlock();
+                job(t);
+                lk.lock();
+                if (--pending == 0) done.notify_one();
+            }
+        }
+        void run(const std::function<void(int)>& f) {
+            {
+                std::lock_guard<std::mutex> lk(m);
+                job = f;
+                pending = tasks - 1;
+                generation++;
+            }
+            wake.notify_all();
+            f(0);
+            std::unique_lock<std::mutex> lk(m);
+            done.wait(lk, [&] { return pending == 0; });
+        }
+        ~Pool() {
+            {
+                std::lock_guard<std::mutex> lk(m);
+                stop = true;
+            }
+            wake.notify_all();
+            for (auto& w : workers) w.join();
+        }
+    } pool;
+
     template <class F>
     void parallel(int tasks, F&& f) {
         if (tasks <= 1) {
             f(0);
             return;
         }
-        std::vector<std::thread> pool;
-        for (int t = 1; t < tasks; t++) pool.emplace_back([&f, t] { f(t); });
-        f(0);
-        for (auto& th : pool) th.join();
+        pool.run(std::function<void(int)>(f));
     }
     int slice(int t) const { return (int)((long)NP / W * t / T) * W; }
 
@@ -420,22 +486,22 @@ struct Engine {
         }
         V U = Wk * CU + KWk * Qb + DWk * Rb;
         if constexpr (D == 3) {
-            for (int a0 = 0; a0 < 3; a0++) {
-                const float w_0 = sb.w[0][a0][i], d_0 = sb.dw[0][a0][i];
-                V U0 = U + (float)a0 * A[0];
+            // the weights are a tensor product: row (a0, a1) = w1[a1] X[a0] + w0[a0] Z[a1]
+            V X[3], Z[3];
+            for (int a = 0; a < 3; a++) {
+                X[a] = sb.w[0][a][i] * (U + (float)a * A[0]) + sb.dw[0][a][i] * G[0];
+                Z[a] = ((float)a * sb.w[1][a][i]) * A[1] + sb.dw[1][a][i] * G[1];
+            }
+            for (int a0 = 0; a0 < 3; a0++)
                 for (int a1 = 0; a1 < 3; a1++) {
-                    const float w_1 = sb.w[1][a1][i], d_1 = sb.dw[1][a1][i];
-                    float wl = w_0 * w_1;
-                    V row = wl * (U0 + (float)a1 * A[1]) + (d_0 * w_1) * G[0] + (w_0 * d_1) * G[1];
-                    float* q = gr + ((long)a0 * w.stride[0] + (long)a1 * w.stride[1]) * 4;
+                    V row = sb.w[1][a1][i] * X[a0] + sb.w[0][a0][i] * Z[a1];
+                    float* q = gr + w.row[3 * a0 + a1];
                     vstore(q, vload(q) + row);
                 }
-            }
         } else {
             for (int a0 = 0; a0 < 3; a0++) {
-                float wl = sb.w[0][a0][i];
-                V row = wl * (U + (float)a0 * A[0]) + sb.dw[0][a0][i] * G[0];
-                float* q = gr + (long)a0 * w.stride[0] * 4;
+                V row = sb.w[0][a0][i] * (U + (float)a0 * A[0]) + sb.dw[0][a0][i] * G[0];
+                float* q = gr + w.row[a0];
                 vstore(q, vload(q) + row);
             }
         }
@@ -581,34 +647,36 @@ struct Engine {
             for (int k = 0; k < 3; k++) wt[a][k] = sb.w[a][k][i], dw[a][k] = sb.dw[a][k][i];
         V Wk = wt[L][0] * NODE0 + wt[L][1] * NODE1 + wt[L][2] * NODE2;
         V DWk = dw[L][0] * NODE0 + dw[L][1] * NODE1 + dw[L][2] * NODE2;
-        V VP{}, BL{}, BA[D - 1];
-        for (int a = 0; a < L; a++) BA[a] = V{};
+        // the weights are a tensor product: sum over the last leading axis first
+        V VP, BL, BA[D - 1];
         if constexpr (D == 3) {
-            for (int a0 = 0; a0 < 3; a0++)
-                for (int a1 = 0; a1 < 3; a1++) {
-                    V gv = vload(gr + ((long)a0 * w.stride[0] + (long)a1 * w.stride[1]) * 4);
-                    V t = Wk * gv;
-                    float wl = wt[0][a0] * wt[1][a1];
-                    VP += wl * t;
-                    BA[0] += (dw[0][a0] * wt[1][a1]) * t;
-                    BA[1] += (wt[0][a0] * dw[1][a1]) * t;
-                    BL += wl * (DWk * gv);
-                }
-        } else {
+            V T1{}, T2{}, T3{};
             for (int a0 = 0; a0 < 3; a0++) {
-                V gv = vload(gr + (long)a0 * w.stride[0] * 4);
-                V t = Wk * gv;
-                VP += wt[0][a0] * t;
-                BA[0] += dw[0][a0] * t;
-                BL += wt[0][a0] * (DWk * gv);
+                V g0 = vload(gr + w.row[3 * a0]), g1 = vload(gr + w.row[3 * a0 + 1]), g2 = vload(gr + w.row[3 * a0 + 2]);
+                V S1 = wt[1][0] * g0 + wt[1][1] * g1 + wt[1][2] * g2;  // sum_a1 w1 v
+                V S2 = dw[1][0] * g0 + dw[1][1] * g1 + dw[1][2] * g2;  // sum_a1 dw1 v
+                T1 += wt[0][a0] * S1;
+                T2 += dw[0][a0] * S1;
+                T3 += wt[0][a0] * S2;
             }
+            VP = Wk * T1, BA[0] = Wk * T2, BA[1] = Wk * T3, BL = DWk * T1;
+        } else {
+            V T1{}, T2{};
+            for (int a0 = 0; a0 < 3; a0++) {
+                V g = vload(gr + w.row[a0]);
+                T1 += wt[0][a0] * g;
+                T2 += dw[0][a0] * g;
+            }
+            VP = Wk * T1, BA[0] = Wk * T2, BL = DWk * T1;
         }
+        V4 vp = node_sum(VP), bl = node_sum(BL) * inv_dx, ba[D - 1];
+        for (int a = 0; a < L; a++) ba[a] = node_sum(BA[a]) * inv_dx;
         for (int r = 0; r < D; r++) {
-            blk.vp[r][i] = row_sum(VP, r);
-            for (int a = 0; a < L; a++) blk.B[r][a][i] = row_sum(BA[a], r) * inv_dx;
-            blk.B[r][L][i] = row_sum(BL, r) * inv_dx;  // C_p = grad v
+            blk.vp[r][i] = vp[r];
+            for (int a = 0; a < L; a++) blk.B[r][a][i] = ba[a][r];
+            blk.B[r][L][i] = bl[r];  // C_p = grad v
         }
-        blk.mass[i] = row_sum(VP, D);
+        blk.mass[i] = vp[D];
     }
 
     // ---------------------------------------------------------------------------------------------------
@@ -674,10 +742,22 @@ struct Engine {
             V z = D == 3 ? xp[D - 1] : splat(P.zmid);
             VI f = vloadi(&flags[p]);
             VI hidden = (f & HIDDEN) != 0, frozen{};
+            // the block's extent decides most box tests at once (sorted particles lie close together)
+            const float ext[3][2] = {{lane_min(xp[0], live), lane_max(xp[0], live)},
+                                     {lane_min(xp[1], live), lane_max(xp[1], live)},
+                                     {lane_min(z, live), lane_max(z, live)}};
             for (int b = 0; b < 4; b++) {
                 const float(*bx)[3] = P.boxes[b];
-                VI in_xy = (bx[0][0] <= xp[0]) & (xp[0] <= bx[1][0]) & (bx[0][1] <= xp[1]) & (xp[1] <= bx[1][1]);
-                VI in_z = (bx[0][2] <= z) & (z <= bx[1][2]);
+                bool out_xy = false, all_xy = true, out_z, all_z;
+                for (int a = 0; a < 2; a++) {
+                    out_xy |= ext[a][1] < bx[0][a] || ext[a][0] > bx[1][a];
+                    all_xy &= bx[0][a] <= ext[a][0] && ext[a][1] <= bx[1][a];
+                }
+                if (out_xy) continue;  // no particle of the block lies in the box's (x, y) range
+                out_z = ext[2][1] < bx[0][2] || ext[2][0] > bx[1][2];
+                all_z = bx[0][2] <= ext[2][0] && ext[2][1] <= bx[1][2];
+                VI in_xy = all_xy ? splati(-1) : (bx[0][0] <= xp[0]) & (xp[0] <= bx[1][0]) & (bx[0][1] <= xp[1]) & (xp[1] <= bx[1][1]);
+                VI in_z = out_z ? VI{} : all_z ? splati(-1) : (bx[0][2] <= z) & (z <= bx[1][2]);
                 hidden = seli(in_xy, in_z, hidden);  // the last box containing (x, y) decides visibility
                 frozen |= in_xy & in_z;
             }
