@@ -35,10 +35,9 @@ def available() -> bool:
 
 def why_unavailable() -> str:
     """One line: why the native engine cannot run ('' when it can)."""
-    if _native is not None:
-        return ""
-    return (f"the native engine (mpm._native) is not built ({_IMPORT_ERROR}); reinstall with a C++ compiler "
-            "(pip install -e .)")
+    if _native is None:
+        return f"mpm._native does not import ({_IMPORT_ERROR}); reinstall with a C++ compiler: pip install -e ."
+    return ""
 
 
 def isa() -> str:

@@ -272,7 +272,7 @@ class _Run:
                 steps += m
                 dts.append(dt)
             x, hidden, frozen, jm = self._snapshot()
-            frames3.append(self._visible_positions(x, hidden))
+            frames3.append(self.scene.visible_positions(x, hidden))
             visible.append(int((~hidden).sum()))
             moving = ~frozen
             front.append(float(x[moving, 0].max()) if moving.any() else 0.0)
@@ -301,18 +301,3 @@ class _Run:
         if not np.all(np.isfinite(x)):
             raise SimulationError("simulation blew up: a particle position became NaN")
         return x, (flags & kn.HIDDEN) != 0, frozen, float(j.mean())
-
-    def _visible_positions(self, x, hidden) -> np.ndarray:
-        p = x[~hidden]
-        if self.scene.dim == 3:
-            return p
-        # plane strain: extrude the section over the 3D particle layers in z (near-wall layer excluded)
-        s = self.scene.spacing_m
-        o = self.scene.overlap_m
-        nz = int(math.ceil((self.scene.depth_m + 2 * o) / s - 1e-9))
-        zs = -o + s * (np.arange(nz) + 0.5)
-        zs = zs[zs <= self.scene.depth_m]
-        out = np.empty((len(p) * len(zs), 3))
-        out[:, :2] = np.repeat(p, len(zs), axis=0)
-        out[:, 2] = np.tile(zs, len(p))
-        return out
