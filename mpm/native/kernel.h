@@ -18,11 +18,107 @@ using virheo::Outputs;
 using virheo::Result;
 using virheo::ProgressFn;
 
-typedef float V __attribute__((vector_size(64)));
-typedef int VI __attribute__((vector_size(64)));
 constexpr int W = 16;  // lanes of a block
 
 #define VH_INLINE static inline __attribute__((always_inline))
+
+// The 16-lane values V (float) and VI (int32). With AVX-512 one register each (GCC's vector extension); on
+// narrower instruction sets a pack of native registers with the same operators: GCC lowers a 64-byte vector
+// type that the target lacks through the stack, which made those paths several times slower than scalar code.
+// engine.cpp sets VIRHEO_VEC_BYTES, the register width of the instruction set.
+#if VIRHEO_VEC_BYTES == 64
+typedef float V __attribute__((vector_size(64)));
+typedef int VI __attribute__((vector_size(64)));
+VH_INLINE VI asi(V a) { return (VI)a; }
+VH_INLINE V asf(VI a) { return (V)a; }
+VH_INLINE VI to_int(V a) { return __builtin_convertvector(a, VI); }  // truncation
+VH_INLINE V tofloat(VI a) { return __builtin_convertvector(a, V); }
+VH_INLINE V vsqrt(V a) {
+    V r;
+    for (int i = 0; i < W; i++) r[i] = __builtin_sqrtf(a[i]);
+    return r;
+}
+#else
+typedef float NF __attribute__((vector_size(VIRHEO_VEC_BYTES)));
+typedef int NI __attribute__((vector_size(VIRHEO_VEC_BYTES)));
+constexpr int NL = VIRHEO_VEC_BYTES / 4, K = W / NL;  // lanes per register, registers per value
+struct VI {
+    NI r[K];
+    int operator[](int i) const { return r[i / NL][i % NL]; }
+};
+struct V {
+    NF r[K];
+    float operator[](int i) const { return r[i / NL][i % NL]; }
+    float& operator[](int i) { return reinterpret_cast<float*>(r)[i]; }
+};
+#define VH_BIN(T, R, op)                                                       \
+    VH_INLINE R operator op(const T& a, const T& b) {                          \
+        R o;                                                                   \
+        for (int k = 0; k < K; k++) o.r[k] = a.r[k] op b.r[k];                 \
+        return o;                                                              \
+    }
+#define VH_SCALAR(T, S, R, op)                                                 \
+    VH_INLINE R operator op(const T& a, S b) {                                 \
+        R o;                                                                   \
+        for (int k = 0; k < K; k++) o.r[k] = a.r[k] op b;                      \
+        return o;                                                              \
+    }                                                                          \
+    VH_INLINE R operator op(S a, const T& b) {                                 \
+        R o;                                                                   \
+        for (int k = 0; k < K; k++) o.r[k] = a op b.r[k];                      \
+        return o;                                                              \
+    }
+#define VH_ARITH(T, S, op) VH_BIN(T, T, op) VH_SCALAR(T, S, T, op)              \
+    VH_INLINE T& operator op##=(T& a, const T& b) { return a = a op b; }         \
+    VH_INLINE T& operator op##=(T& a, S b) { return a = a op b; }
+#define VH_CMP(T, S, op) VH_BIN(T, VI, op) VH_SCALAR(T, S, VI, op)
+VH_ARITH(V, float, +) VH_ARITH(V, float, -) VH_ARITH(V, float, *) VH_ARITH(V, float, /)
+VH_CMP(V, float, <) VH_CMP(V, float, >) VH_CMP(V, float, <=) VH_CMP(V, float, >=) VH_CMP(V, float, ==)
+VH_CMP(V, float, !=)
+VH_ARITH(VI, int, +) VH_ARITH(VI, int, -) VH_ARITH(VI, int, &) VH_ARITH(VI, int, |)
+VH_CMP(VI, int, <) VH_CMP(VI, int, >) VH_CMP(VI, int, ==) VH_CMP(VI, int, !=)
+VH_SCALAR(VI, int, VI, <<) VH_SCALAR(VI, int, VI, >>)
+#undef VH_BIN
+#undef VH_SCALAR
+#undef VH_ARITH
+#undef VH_CMP
+VH_INLINE V operator-(const V& a) {
+    V o;
+    for (int k = 0; k < K; k++) o.r[k] = -a.r[k];
+    return o;
+}
+VH_INLINE VI operator~(const VI& a) {
+    VI o;
+    for (int k = 0; k < K; k++) o.r[k] = ~a.r[k];
+    return o;
+}
+VH_INLINE VI asi(const V& a) {
+    VI o;
+    for (int k = 0; k < K; k++) o.r[k] = (NI)a.r[k];
+    return o;
+}
+VH_INLINE V asf(const VI& a) {
+    V o;
+    for (int k = 0; k < K; k++) o.r[k] = (NF)a.r[k];
+    return o;
+}
+VH_INLINE VI to_int(const V& a) {
+    VI o;
+    for (int k = 0; k < K; k++) o.r[k] = __builtin_convertvector(a.r[k], NI);
+    return o;
+}
+VH_INLINE V tofloat(const VI& a) {
+    V o;
+    for (int k = 0; k < K; k++) o.r[k] = __builtin_convertvector(a.r[k], NF);
+    return o;
+}
+VH_INLINE V vsqrt(const V& a) {
+    V o;
+    for (int k = 0; k < K; k++)
+        for (int i = 0; i < NL; i++) o.r[k][i] = __builtin_sqrtf(a.r[k][i]);
+    return o;
+}
+#endif
 
 VH_INLINE V vload(const float* p) { V r; __builtin_memcpy(&r, p, sizeof(V)); return r; }
 VH_INLINE VI vloadi(const int* p) { VI r; __builtin_memcpy(&r, p, sizeof(VI)); return r; }
@@ -30,9 +126,9 @@ VH_INLINE void vstore(float* p, V a) { __builtin_memcpy(p, &a, sizeof(V)); }
 VH_INLINE void vstorei(int* p, VI a) { __builtin_memcpy(p, &a, sizeof(VI)); }
 VH_INLINE V splat(float a) { return V{} + a; }
 VH_INLINE VI splati(int a) { return VI{} + a; }
-VH_INLINE V sel(VI m, V a, V b) { return (V)(((VI)a & m) | ((VI)b & ~m)); }
+VH_INLINE V sel(VI m, V a, V b) { return asf((asi(a) & m) | (asi(b) & ~m)); }
 VH_INLINE VI seli(VI m, VI a, VI b) { return (a & m) | (b & ~m); }
-VH_INLINE V vabs(V a) { return (V)((VI)a & 0x7fffffff); }
+VH_INLINE V vabs(V a) { return asf(asi(a) & 0x7fffffff); }
 VH_INLINE V vmin(V a, V b) { return sel(a < b, a, b); }
 VH_INLINE V vmax(V a, V b) { return sel(a > b, a, b); }
 VH_INLINE bool any(VI m) {
@@ -40,17 +136,10 @@ VH_INLINE bool any(VI m) {
     for (int i = 0; i < W; i++) r |= m[i];
     return r != 0;
 }
-VH_INLINE V vsqrt(V a) {
-    V r;
-    for (int i = 0; i < W; i++) r[i] = __builtin_sqrtf(a[i]);
-    return r;
-}
 VH_INLINE VI vfloor_i(V a) {  // floor as int32, |a| < 2^31
-    VI t = __builtin_convertvector(a, VI);
-    V tf = __builtin_convertvector(t, V);
-    return t + (VI)(tf > a);  // the mask is -1 where truncation rounded up
+    VI t = to_int(a);
+    return t + (tofloat(t) > a);  // the mask is -1 where truncation rounded up
 }
-VH_INLINE V tofloat(VI a) { return __builtin_convertvector(a, V); }
 
 // exp and log in float32 (range reduction by powers of two, minimax polynomials on the reduced interval),
 // branch-free so that all lanes run them at once; relative error a few ulp.
@@ -65,14 +154,13 @@ VH_INLINE V vexp(V x) {
     p = p * r + 1.6666665459e-1f;
     p = p * r + 5.0000001201e-1f;
     V y = p * r * r + r + 1.0f;
-    VI n = __builtin_convertvector(fx, VI);
-    return y * (V)((n + 127) << 23);  // times 2^n
+    return y * asf((to_int(fx) + 127) << 23);  // times 2^n
 }
 
 VH_INLINE V vlog(V x) {  // x > 0 and normal
-    VI bits = (VI)x;
+    VI bits = asi(x);
     VI e = ((bits >> 23) & 0xff) - 126;
-    V m = (V)((bits & 0x007fffff) | 0x3f000000);  // mantissa in [0.5, 1)
+    V m = asf((bits & 0x007fffff) | 0x3f000000);  // mantissa in [0.5, 1)
     VI small = m < 0.707106781186547524f;
     e = e + small;  // the mask is -1: one binade down
     m = sel(small, m + m, m) - 1.0f;
@@ -94,8 +182,7 @@ VH_INLINE V vlog(V x) {  // x > 0 and normal
 // x^(1/3) for x > 0: a guess from the float's bits (exponent / 3), then two Halley steps
 // y <- y (y^3 + 2x) / (2y^3 + x) (cubic convergence: 10 % -> 1e-4 -> 1e-12).
 VH_INLINE V vcbrt(V x) {
-    VI g = __builtin_convertvector(tofloat((VI)x) * (1.0f / 3.0f), VI) + 709921077;
-    V y = (V)g;
+    V y = asf(to_int(tofloat(asi(x)) * (1.0f / 3.0f)) + 709921077);
     for (int it = 0; it < 2; it++) {
         V y3 = y * y * y;
         y = y * (y3 + 2.0f * x) / (2.0f * y3 + x);
@@ -227,16 +314,33 @@ VH_INLINE Weights ugimp(V fx, float l) {
 
 // Lane patterns of a stencil row: lane 4k + c is component c of node k (k = 0..2; lanes 12-15: a 4th node
 // that receives + 0).
-static const V NODE0 = {1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0};
-static const V NODE1 = {0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0};
-static const V NODE2 = {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0};
-static const V COMP[4] = {{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0}, {0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0},
-                          {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0}, {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}};
+static const float NODE_[3][W] = {{1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
+                                  {0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0},
+                                  {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0}};
+static const float COMP_[4][W] = {{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0},
+                                  {0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0},
+                                  {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0},
+                                  {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}};
+static const int IOTA_[W] = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15};
+#define NODE0 vload(NODE_[0])
+#define NODE1 vload(NODE_[1])
+#define NODE2 vload(NODE_[2])
+#define COMP(c) vload(COMP_[c])
 typedef float V4 __attribute__((vector_size(16)));
-VH_INLINE V4 node_sum(V a) {  // lanes c of nodes 0..2 added: (sum_k a[4k + c])_c
+// (sum_k a[4k + c])_c, c = 0..3: the three nodes of a stencil row added, in registers
+#if VIRHEO_VEC_BYTES == 64
+VH_INLINE V4 node_sum(V a) {
     return __builtin_shufflevector(a, a, 0, 1, 2, 3) + __builtin_shufflevector(a, a, 4, 5, 6, 7) +
            __builtin_shufflevector(a, a, 8, 9, 10, 11);
 }
+#elif VIRHEO_VEC_BYTES == 32
+VH_INLINE V4 node_sum(const V& a) {
+    return __builtin_shufflevector(a.r[0], a.r[0], 0, 1, 2, 3) + __builtin_shufflevector(a.r[0], a.r[0], 4, 5, 6, 7) +
+           __builtin_shufflevector(a.r[1], a.r[1], 0, 1, 2, 3);
+}
+#else
+VH_INLINE V4 node_sum(const V& a) { return a.r[0] + a.r[1] + a.r[2]; }
+#endif
 // lowest and highest value of the live lanes
 VH_INLINE float lane_min(V a, VI live) {
     V m = sel(live, a, splat(3.0e38f));
@@ -326,7 +430,7 @@ struct Engine {
         VI lov[3], hiv[3];
         for (int a = 0; a < D; a++) lov[a] = splati(INT_BIG), hiv[a] = splati(-INT_BIG);
         for (int p = p0; p < p1; p += W) {
-            VI live = (VI{0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15} + p) < N;
+            VI live = (vloadi(IOTA_) + p) < N;
             for (int a = 0; a < D; a++) {
                 VI b = vfloor_i(vload(&x[a][p]) * inv_dx - P.lh);
                 vstorei(&base[a][p], b);
@@ -472,15 +576,15 @@ struct Engine {
         V Wk = w0 * NODE0 + w1 * NODE1 + w2 * NODE2;
         V KWk = w1 * NODE1 + (2.0f * w2) * NODE2;
         V DWk = sb.dw[L][0][i] * NODE0 + sb.dw[L][1][i] * NODE1 + sb.dw[L][2][i] * NODE2;
-        V CU = P.mp * COMP[D], Qb{}, Rb{}, A[D - 1], G[D - 1];
+        V CU = P.mp * COMP(D), Qb{}, Rb{}, A[D - 1], G[D - 1];
         for (int r = 0; r < D; r++) {
-            CU += sb.u[r][i] * COMP[r];
-            Qb += sb.mC[r][L][i] * COMP[r];
-            Rb += sb.S[r][L][i] * COMP[r];
+            CU += sb.u[r][i] * COMP(r);
+            Qb += sb.mC[r][L][i] * COMP(r);
+            Rb += sb.S[r][L][i] * COMP(r);
         }
         for (int a = 0; a < L; a++) {
             V ma{}, sa{};
-            for (int r = 0; r < D; r++) ma += sb.mC[r][a][i] * COMP[r], sa += sb.S[r][a][i] * COMP[r];
+            for (int r = 0; r < D; r++) ma += sb.mC[r][a][i] * COMP(r), sa += sb.S[r][a][i] * COMP(r);
             A[a] = Wk * ma;
             G[a] = Wk * sa;
         }
@@ -710,7 +814,7 @@ struct Engine {
                 }
                 blk.mass[i] = 0;
             }
-            VI live = VI{0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15} < cnt;
+            VI live = vloadi(IOTA_) < cnt;
             // elastic predictor b* = F b F^T, F = I + dt C (eq. 52)
             V F[3][3];
             for (int r = 0; r < 3; r++)
@@ -987,4 +1091,8 @@ static void return_mapping_batch(const float* bt, const float* bo, const float* 
 }
 
 #undef VH_INLINE
+#undef NODE0
+#undef NODE1
+#undef NODE2
+#undef COMP
 }  // namespace VIRHEO_ISA
