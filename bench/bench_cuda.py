@@ -159,9 +159,9 @@ def main(argv=None) -> int:
                   f"{wall:.1f} s wall ({ok} ok), {rate:.2f} simulations/s ({rate / base:.2f}x one process), "
                   f"median {sim_s:.2f} s simulating each", flush=True)
         if a.cpu_workers > 0:
-            with arch_env(a.cpu_engine, 1, a.cpu_cores):
+            with arch_env(a.cpu_engine, 1, a.cpu_cores):  # requests name the engine they were made for
                 run([simulation_request(mat, exp, warm)], 1)
-                out, wall = run(reqs, a.cpu_workers)
+                out, wall = run([simulation_request(p, exp, model) for p in pop], a.cpu_workers)
             ok = sum(r.ok for r in out)
             sim_s = np.median([r.stats["sim_s"] for r in out if r.ok])
             print(f"# the same population on {a.cpu_workers} {a.cpu_engine} processes (one thread each): "
