@@ -695,37 +695,42 @@ struct Engine {
         const int n_walls = D == 3 ? 4 : 2;
         const Window& w = win[g];
         float* G0 = grid[g].data();
-        int idx[3];
-        for (long i = 0; i < w.count; i++) {
-            float* q = G0 + i * 4;
-            if (!(q[D] > 0)) continue;
-            long rest = i;
-            for (int a = D - 1; a >= 0; a--) idx[a] = (int)(rest % w.n[a]), rest /= w.n[a];
-            float pos[3] = {0, 0, 0};
-            for (int a = 0; a < D; a++) pos[a] = (float)(idx[a] + w.org[a]) * P.dx;
-            int m = boxes_holding(pos);
-            if (!m) continue;
-            float vel[3] = {0, 0, 0};
-            if ((m & (m - 1)) == 0) {  // exactly one wall
-                int b = __builtin_ctz(m);
-                if (b < n_walls) {
-                    int axis = NORMALS[b][0], sign = NORMALS[b][1], face = NORMALS[b][2];
-                    float s = sign * (pos[axis] - P.boxes[b][face][axis]);  // <= 0: inside the wall
-                    int k = (int)std::floor(-s * inv_dx) + 1;  // nodes to the first one outside
-                    int j = idx[axis] + sign * k;
-                    if (0 <= j && j < w.n[axis]) {
-                        float fpos[3] = {pos[0], pos[1], pos[2]};
-                        fpos[axis] += sign * k * P.dx;
-                        if (!boxes_holding(fpos)) {
-                            const float* gf = G0 + (i + (long)sign * k * w.stride[axis]) * 4;
-                            float f = std::max(P.slip + s, 0.0f) / (P.slip + s + k * P.dx);  // Navier profile
-                            for (int a = 0; a < D; a++)
-                                if (a != axis) vel[a] = gf[a] * f;
+        const int n1 = D == 3 ? w.n[1] : 1, nl = w.n[L];
+        int idx[3] = {0, 0, 0};
+        for (int r = 0; r < w.n[0] * n1; r++) {
+            idx[0] = r / n1;
+            if (D == 3) idx[1] = r % n1;
+            unsigned char mr = D == 3 ? (axis_mask[0][idx[0]] & axis_mask[1][idx[1]]) : (axis_mask[0][idx[0]] & zmask2d);
+            if (!mr) continue;  // no wall along this row
+            for (int k = 0; k < nl; k++) {
+                int m = mr & axis_mask[L][k];  // the boxes holding the node (the grid update's test)
+                float* q = G0 + ((long)r * nl + k) * 4;
+                if (!m || !(q[D] > 0)) continue;
+                idx[L] = k;
+                float pos[3] = {0, 0, 0};
+                for (int a = 0; a < D; a++) pos[a] = (float)(idx[a] + w.org[a]) * P.dx;
+                float vel[3] = {0, 0, 0};
+                if ((m & (m - 1)) == 0) {  // exactly one wall
+                    int b = __builtin_ctz(m);
+                    if (b < n_walls) {
+                        int axis = NORMALS[b][0], sign = NORMALS[b][1], face = NORMALS[b][2];
+                        float s = sign * (pos[axis] - P.boxes[b][face][axis]);  // <= 0: inside the wall
+                        int kk = (int)std::floor(-s * inv_dx) + 1;  // nodes to the first one outside
+                        int j = idx[axis] + sign * kk;
+                        if (0 <= j && j < w.n[axis]) {
+                            float fpos[3] = {pos[0], pos[1], pos[2]};
+                            fpos[axis] += sign * kk * P.dx;
+                            if (!boxes_holding(fpos)) {
+                                const float* gf = q + (long)sign * kk * w.stride[axis] * 4;
+                                float f = std::max(P.slip + s, 0.0f) / (P.slip + s + kk * P.dx);  // Navier profile
+                                for (int a = 0; a < D; a++)
+                                    if (a != axis) vel[a] = gf[a] * f;
+                            }
                         }
                     }
                 }
+                for (int a = 0; a < D; a++) q[a] = vel[a];
             }
-            for (int a = 0; a < D; a++) q[a] = vel[a];
         }
     }
 
