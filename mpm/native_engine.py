@@ -83,13 +83,15 @@ class NativeRun:
         self.isa = isa()
 
     def _params(self, cfl: float):
-        from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START
+        from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START, get_flow_rule
 
         s = self.scene
-        fp = np.zeros(24, np.float64)
-        fp[:22] = (s.cell_m, s.particle_mass, s.particle_volume, s.kappa, s.mu, self.eta, self.n, self.sigma_y,
+        rule = get_flow_rule("yue2015" if self.yue else "paper")
+        fp = np.zeros(25, np.float64)
+        fp[:] = (s.cell_m, s.particle_mass, s.particle_volume, s.kappa, s.mu, self.eta, self.n, self.sigma_y,
                    self.body[0], self.body[1], self.body[2], s.plane_z_m, s.half_length_m / s.cell_m, self.slip_m,
-                   NEWTON_TOL, NO_WARM_START, cfl, s.wave_speed, s.gravity, s.speed_limit, FPS, NEWTON_ITERATIONS)
+                   NEWTON_TOL, NO_WARM_START, cfl, s.wave_speed, s.gravity, s.speed_limit, FPS, NEWTON_ITERATIONS,
+                   rule.alpha, rule.beta, rule.c)
         return fp
 
     def execute(self, progress=None):
@@ -106,7 +108,7 @@ class NativeRun:
         lim[:d] = np.floor(lo / s.cell_m) - 1
         lim[3:3 + d] = np.ceil(hi / s.cell_m) + 1
         times = np.ascontiguousarray(frame_times(), np.float64)
-        ip = np.array([d, self.yue, self.density_correction, self.slip_m > 0, self.threads,
+        ip = np.array([d, self.density_correction, self.slip_m > 0, self.threads,
                        solver.SUBSTEPS_PER_FRAME, count, N_FRAMES], np.int32)
         out_x = np.empty((N_FRAMES, count, d), np.float32)
         out_flags = np.empty((N_FRAMES, count), np.uint8)
@@ -146,14 +148,13 @@ def return_mapping(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rule: str 
     """The native engine's return mapping over a batch: the contract of
     ``mpm.constitutive.return_mapping_taichi`` (float32). Returns (new b_e as float64, plastic flags, log of the
     excess stress where plastic, else NaN)."""
-    from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START
-    from mpm.params import check_flow_rule
+    from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START, get_flow_rule
 
     log_e0 = NO_WARM_START if log_e0 is None else log_e0
 
     if _native is None:
         raise ValueError(why_unavailable())
-    yue = check_flow_rule(flow_rule) == "yue2015"
+    rule = get_flow_rule(flow_rule)
     be = np.ascontiguousarray(np.asarray(be_trial, np.float32).reshape(-1, 3, 3))
     batch = np.shape(be_trial)[:-2]
     old = np.ascontiguousarray(np.broadcast_to(np.asarray(be_old), np.shape(be_trial)).reshape(-1, 3, 3), np.float32)
@@ -162,8 +163,8 @@ def return_mapping(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rule: str 
     out = np.zeros_like(be)
     plastic = np.zeros(len(be), np.int32)
     log_e = np.zeros(len(be), np.float32)
-    _native.return_mapping(be, old, np.ascontiguousarray(par), yue, NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START,
-                           out, plastic, log_e, isa())
+    _native.return_mapping(be, old, np.ascontiguousarray(par), rule.alpha, rule.beta, rule.c, NEWTON_ITERATIONS,
+                           NEWTON_TOL, NO_WARM_START, out, plastic, log_e, isa())
     flags = plastic.astype(bool)
     return (out.astype(np.float64).reshape(np.shape(be_trial)), flags.reshape(batch),
             np.where(flags, log_e.astype(np.float64), np.nan).reshape(batch))

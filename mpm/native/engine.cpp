@@ -133,10 +133,10 @@ PyObject* py_simulate(PyObject*, PyObject* args) {
                           &o_f, &o_j, &o_m, &progress, &isa))
         return nullptr;
     Buffer ip, fp;
-    if (!get_buffer(o_ip, ip, 4, 8, false, "iparams") || !get_buffer(o_fp, fp, 8, 24, false, "fparams")) return nullptr;
+    if (!get_buffer(o_ip, ip, 4, 7, false, "iparams") || !get_buffer(o_fp, fp, 8, 25, false, "fparams")) return nullptr;
     const int* I = static_cast<const int*>(ip.view.buf);
     const double* Fp = static_cast<const double*>(fp.view.buf);
-    int dim = I[0], n = I[6], frames = I[7];
+    int dim = I[0], n = I[5], frames = I[6];
     if ((dim != 2 && dim != 3) || n <= 0 || frames <= 0) {
         PyErr_SetString(PyExc_ValueError, "native engine: dim must be 2 or 3 and the scene must hold particles");
         return nullptr;
@@ -154,13 +154,14 @@ PyObject* py_simulate(PyObject*, PyObject* args) {
         !get_buffer(o_j, oj, 8, frames, true, "out_mean_j") || !get_buffer(o_m, om, 8, frames, true, "out_grid_mass"))
         return nullptr;
     virheo::Params P{};
-    P.dim = dim, P.yue = I[1], P.dens = I[2], P.slipping = I[3], P.threads = I[4], P.substeps = I[5];
+    P.dim = dim, P.dens = I[1], P.slipping = I[2], P.threads = I[3], P.substeps = I[4];
     P.n_frames = frames;
     float* fdst[] = {&P.dx, &P.mp, &P.vol, &P.kappa, &P.mu, &P.eta, &P.n, &P.sy, &P.body[0], &P.body[1],
                      &P.body[2], &P.zmid, &P.lh, &P.slip, &P.newton_tol, &P.no_warm_start};
     for (int i = 0; i < 16; i++) *fdst[i] = (float)Fp[i];
     P.cfl = Fp[16], P.wave_speed = Fp[17], P.gravity = Fp[18], P.speed_limit = Fp[19], P.fps = Fp[20];
     P.newton_iterations = (int)Fp[21];
+    P.alpha = (float)Fp[22], P.beta = (float)Fp[23], P.flow_c = (float)Fp[24];
     const double* B = static_cast<const double*>(bx.view.buf);
     for (int b = 0; b < 4; b++)
         for (int s = 0; s < 2; s++)
@@ -199,14 +200,15 @@ PyObject* py_simulate(PyObject*, PyObject* args) {
                          r.refills);
 }
 
-// return_mapping(be_trial, be_old, par, yue, iterations, newton_tol, no_warm_start, out, plastic, log_e, isa)
+// return_mapping(be_trial, be_old, par, alpha, beta, c, iterations, newton_tol, no_warm_start, out, plastic, log_e,
+//                isa)
 PyObject* py_return_mapping(PyObject*, PyObject* args) {
     PyObject *o_bt, *o_bo, *o_par, *o_out, *o_pl, *o_le;
-    int yue, iterations;
-    double tol, nws;
+    int iterations;
+    double tol, nws, alpha, beta, c;
     const char* isa;
-    if (!PyArg_ParseTuple(args, "OOOpiddOOOs", &o_bt, &o_bo, &o_par, &yue, &iterations, &tol, &nws, &o_out, &o_pl,
-                          &o_le, &isa))
+    if (!PyArg_ParseTuple(args, "OOOdddiddOOOs", &o_bt, &o_bo, &o_par, &alpha, &beta, &c, &iterations, &tol, &nws,
+                          &o_out, &o_pl, &o_le, &isa))
         return nullptr;
     if (!isa_ok(isa)) {
         PyErr_Format(PyExc_ValueError, "native engine: this CPU does not run the %s path", isa);
@@ -221,7 +223,7 @@ PyObject* py_return_mapping(PyObject*, PyObject* args) {
         return nullptr;
     auto args_of = [&](auto fn) {
         fn(static_cast<const float*>(bt.view.buf), static_cast<const float*>(bo.view.buf),
-           static_cast<const float*>(par.view.buf), (int)n, yue, iterations, (float)tol, (float)nws,
+           static_cast<const float*>(par.view.buf), (int)n, {(float)alpha, (float)beta, (float)c}, iterations, (float)tol, (float)nws,
            static_cast<float*>(out.view.buf), static_cast<int*>(pl.view.buf), static_cast<float*>(le.view.buf));
     };
     std::string which(isa);

@@ -400,8 +400,7 @@ struct Engine {
         T = p.threads < 1 ? 1 : p.threads;
         inv_dx = 1.0f / P.dx;
         if (T > 1) pool.start(T);
-        const float s2 = 1.41421356237309505f, s23 = 0.816496580927726f;
-        rule = P.yue ? Rule{1.0f, s23, 2.0f} : Rule{1.0f / s2, 1.0f, s2};
+        rule = Rule{P.alpha, P.beta, P.flow_c};
         for (int a = 0; a < D; a++) {
             x[a].assign(NP, 0.0f);
             v[a].assign(NP, 0.0f);
@@ -1073,11 +1072,9 @@ static Result simulate(const Params& p, const double* pos, const int* flags0, in
 }
 
 // mpm.constitutive.return_mapping over a batch: be_trial, be_old (N, 3, 3); par (N, 6) = mu, eta, n, sigma_y,
-// dt, log_e0. Writes the new b_e (N, 3, 3), plastic flags and log(e).
-static void return_mapping_batch(const float* bt, const float* bo, const float* par, int n, int yue, int iterations,
+// dt, log_e0; rule: the flow rule's (alpha, beta, c). Writes the new b_e (N, 3, 3), plastic flags and log(e).
+static void return_mapping_batch(const float* bt, const float* bo, const float* par, int n, Rule rule, int iterations,
                                  float newton_tol, float no_warm_start, float* out, int* plastic, float* log_e) {
-    const float s2 = 1.41421356237309505f, s23 = 0.816496580927726f;
-    Rule rule = yue ? Rule{1.0f, s23, 2.0f} : Rule{1.0f / s2, 1.0f, s2};
     const int pi[6] = {0, 1, 2, 0, 0, 1}, pj[6] = {0, 1, 2, 1, 2, 2};
     for (int i = 0; i < n; i++) {  // one lane per call: the parameters may differ per entry
         Sym t, o;

@@ -4,7 +4,8 @@
 namespace virheo {
 
 struct Params {
-    int dim, yue, dens, slipping, threads, substeps, n_frames, newton_iterations;
+    int dim, dens, slipping, threads, substeps, n_frames, newton_iterations;
+    float alpha, beta, flow_c;  // the flow rule: yield when alpha ||dev sigma|| > beta sigma_y; L_v b_e = -c ...
     float dx, mp, vol, kappa, mu, eta, n, sy, body[3], zmid, lh, slip, newton_tol, no_warm_start;
     double cfl, wave_speed, gravity, speed_limit, fps;
     float boxes[4][2][3];
