@@ -1,6 +1,6 @@
 """Estimation presets (CMA-ES budget and forward-model discretisation) and the simulation request they imply.
 
-A preset names what it is for: ``demo`` (emulated footage, minutes on a laptop), ``footage`` (real
+A preset names what it is for: ``demo`` (emulated footage, about a minute on a laptop), ``footage`` (real
 footage: Algorithm 1 on a cheap model, finished at the solver's validated discretisation with slipping walls)
 and ``paper`` (the paper's budget and discretisation).  Costs and accuracy: docs/performance.md.
 """
@@ -82,8 +82,9 @@ class Preset:
 
 
 PRESETS = {p.name: p for p in (
-    Preset("demo", generations=40, cell_mm=5.0, ppc=1, sigma0=0.2,
-           purpose="emulated footage (virheo demo, emulation studies): 5 mm cells, a few minutes on 2 cores"),
+    Preset("demo", generations=65, cell_mm=5.0, ppc=1, sigma0=0.2,
+           purpose="emulated footage (virheo demo, emulation studies): 5 mm cells, under a minute on 2 cores "
+                   "with the native engine"),
     Preset("footage", generations=12, cell_mm=3.0, ppc=1, sigma0=0.2, finish_generations=6, finish=FOOTAGE_MODEL,
            purpose="real footage: 3 mm cells on sticking walls, then 6 generations at the validated 1.5 mm cells "
                    "with walls slipping by 1 mm"),
