@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mpm.runtime import ENGINES, engine_name
 from similarity.estimate import bound_warnings
 from similarity.presets import PRESETS
 from similarity.space import Material, e_rel
@@ -45,6 +46,7 @@ def test_demo_shortened_with_fake_forward_model(tmp_path):
     assert result["warnings"] == bound_warnings(estimate)
     assert result["setups"][0] == "40x50" and len(result["setups"]) == 2
     assert result["simulations_run"] == result["simulations"]  # a fresh run: every simulation was run now
+    assert result["engine"] == engine_name() and result["engine"] in ENGINES  # its figures depend on the engine
     curve = _png(out / "flow_curve.png")
     assert curve.shape[0] > 100 and curve.shape[1] > 100 and curve.std() > 0  # a drawn figure, not a blank
     assert len(list((out / "overlays").glob("*.png"))) == 8 * len(result["setups"])

@@ -172,6 +172,7 @@ class Run:
     executor: object
     progress: object  # callback for the estimator's progress events, or None
     simulator: str
+    engine: str = ""  # the engine that simulates (mpm.runtime.engine_name): the figures depend on its speed
     simulated: int = 0  # simulations run by this command
     from_store: int = 0  # results served from the store (simulations or cached losses)
     started: float = field(default_factory=time.perf_counter)
@@ -190,7 +191,7 @@ class Run:
     def counts(self) -> dict:
         """For result.json: the same numbers the progress bar and the printed summary show."""
         return {"simulations_run": self.simulated, "results_from_store": self.from_store,
-                "wall_seconds": self.wall_seconds}
+                "wall_seconds": self.wall_seconds, "engine": self.engine}
 
     def cost_line(self, total_simulations: int) -> str:
         """'84 simulations (60 run now, 24 from the store) in 95 s', or that all came from the store."""
@@ -208,7 +209,7 @@ def open_run(args):
     from mpm.store import Store
     from studies.report import progress_bars
 
-    check_engine()
+    engine = check_engine()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     store = Store(Path(args.store) if args.store else out / "store")
@@ -217,7 +218,7 @@ def open_run(args):
         stack.callback(batch.shutdown, executor)
         stack.callback(store.close)
         bars = stack.enter_context(progress_bars(not args.quiet))
-        run = Run(out, store, executor, None, simulator())
+        run = Run(out, store, executor, None, simulator(), engine)
 
         def progress(ev: dict) -> None:
             run.event(ev)
