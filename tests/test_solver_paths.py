@@ -97,3 +97,21 @@ def test_native_engine_threads_agree_with_one(monkeypatch):
     assert np.allclose(sims["1"].front_m, sims["2"].front_m, rtol=0, atol=1e-5)
     a, b = sims["1"].frames[-1], sims["2"].frames[-1]
     assert a.shape == b.shape and np.abs(a - b).max() < 1e-4
+
+
+def test_native_engine_flushes_subnormals_only_while_it_simulates(monkeypatch):
+    """The native engine flushes subnormal floats to zero in its own arithmetic; the caller's floating-point mode
+    is untouched, after the run and inside its progress callback (where Python code runs)."""
+    from types import SimpleNamespace as NS
+
+    import engines
+    from mpm import solver
+
+    tiny = np.float32(1e-39)  # subnormal: 1e-39 * 1 is 0 under flush-to-zero
+    assert np.float32(tiny * np.float32(1.0)) != 0  # the interpreter's own mode keeps subnormals
+    seen = []
+    monkeypatch.setenv("VIRHEO_ARCH", engines.require("native"))
+    solver.simulate(NS(eta=1.0, n=0.8, sigma_y=5.0), NS(width_mm=30, height_mm=20), density=1000.0, cell_mm=6.0,
+                    progress=lambda k, n: seen.append(float(np.float32(tiny * np.float32(1.0)))))
+    assert len(seen) == 8 and all(v != 0 for v in seen)
+    assert np.float32(tiny * np.float32(1.0)) != 0

@@ -17,7 +17,35 @@
 
 #if defined(__x86_64__) || defined(_M_X64)
 #define VIRHEO_X86 1
+#include <xmmintrin.h>
 #endif
+
+namespace virheo {
+// Subnormal floats (below 1.2e-38) arise where the tail of a stencil weight meets a tiny mass or momentum, and on
+// x86 and ARM every operation on one takes a slow microcode path (8 % of a 70 x 70 mm run). While it simulates,
+// the engine flushes them to zero (they are 1e-38 of any value that matters) and gives the caller its own mode back.
+struct FlushDenormals {
+#if VIRHEO_X86
+    unsigned int saved = _mm_getcsr();
+    void on() { _mm_setcsr(saved | 0x8040u); }  // FTZ (bit 15) and DAZ (bit 6)
+    void off() { _mm_setcsr(saved); }
+#elif defined(__aarch64__) && (defined(__GNUC__) || defined(__clang__))
+    unsigned long saved = fpcr();
+    static unsigned long fpcr() {
+        unsigned long v;
+        __asm__ __volatile__("mrs %0, fpcr" : "=r"(v));
+        return v;
+    }
+    void on() { __asm__ __volatile__("msr fpcr, %0" : : "r"(saved | (1ul << 24))); }  // FZ
+    void off() { __asm__ __volatile__("msr fpcr, %0" : : "r"(saved)); }
+#else
+    void on() {}
+    void off() {}
+#endif
+    FlushDenormals() { on(); }
+    ~FlushDenormals() { off(); }
+};
+}  // namespace virheo
 
 #if VIRHEO_X86 && (defined(__GNUC__) || defined(__clang__))
 #if defined(__clang__)
@@ -107,10 +135,12 @@ bool get_buffer(PyObject* obj, Buffer& b, Py_ssize_t itemsize, Py_ssize_t count,
 struct ProgressCtx {
     PyObject* callback;
     PyThreadState** saved;
+    virheo::FlushDenormals* flush;
 };
 
 int call_progress(void* ctx, int frame) {
     auto* c = static_cast<ProgressCtx*>(ctx);
+    c->flush->off();  // Python runs in the caller's floating-point mode
     PyEval_RestoreThread(*c->saved);
     int stop = 0;
     if (PyErr_CheckSignals() != 0) {
@@ -121,6 +151,7 @@ int call_progress(void* ctx, int frame) {
         Py_XDECREF(r);
     }
     *c->saved = PyEval_SaveThread();
+    c->flush->on();
     return stop;
 }
 
@@ -174,7 +205,8 @@ PyObject* py_simulate(PyObject*, PyObject* args) {
     const int* pflags = static_cast<const int*>(fl.view.buf);
     std::string which(isa);
     PyThreadState* saved = nullptr;
-    ProgressCtx ctx{progress, &saved};
+    virheo::FlushDenormals flush;  // until the end of this call: worker threads set it for themselves (kernel.h)
+    ProgressCtx ctx{progress, &saved, &flush};
     virheo::Result r;
     saved = PyEval_SaveThread();
     try {
@@ -187,10 +219,12 @@ PyObject* py_simulate(PyObject*, PyObject* args) {
 #endif
             r = isa_generic::simulate(P, ppos, pflags, n, out, call_progress, &ctx);
     } catch (const std::bad_alloc&) {
+        flush.off();
         PyEval_RestoreThread(saved);
         PyErr_SetString(PyExc_MemoryError, "native engine: out of memory");
         return nullptr;
     }
+    flush.off();
     PyEval_RestoreThread(saved);
     if (r.error == 4) {
         if (!PyErr_Occurred()) PyErr_SetString(PyExc_KeyboardInterrupt, "");

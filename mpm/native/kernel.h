@@ -488,6 +488,7 @@ struct Engine {
             for (int i = 1; i < tasks; i++) workers.emplace_back([this, i] { serve(i); });
         }
         void serve(int t) {
+            virheo::FlushDenormals flush;  // as the calling thread (engine.cpp)
             long seen = 0;
             for (;;) {
                 std::unique_lock<std::mutex> lk(m);
