@@ -54,11 +54,11 @@ def arch_env(arch: str, threads: int, cores: int = 0):
 
 
 def parse_model(text: str):
-    from similarity.presets import Discretisation
+    from mpm.forward import ForwardModel
 
     cell, _, ppc = text.partition(":")
     try:
-        model = Discretisation(float(cell), int(ppc or 1))
+        model = ForwardModel(float(cell), int(ppc or 1))
     except ValueError:
         raise SystemExit(f"bench_cuda: model {text!r}: give CELL_MM:PPC, e.g. 1.5:1") from None
     if not (model.cell_mm > 0 and model.ppc >= 1):
@@ -68,11 +68,11 @@ def parse_model(text: str):
 
 def run(requests, workers: int):
     """Results of ``requests`` on ``workers`` fresh processes (none stored), and the wall time of all."""
-    from mpm import batch
+    from mpm.forward import Forward
 
     t = time.perf_counter()
-    with batch.local_executor(workers) as ex:
-        out = batch.evaluate(requests, executor=ex)
+    with Forward(workers=workers) as forward:
+        out = forward.evaluate(requests)
     return out, time.perf_counter() - t
 
 
@@ -82,8 +82,11 @@ def main(argv=None) -> int:
     from mpm import experiment as xp
     from mpm.datasets import manifest, real_world_dir
     from mpm.loss import iou, video_loss
-    from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED, simulation_request
+    from mpm.forward import Forward
+    from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED
     from similarity.space import Material
+
+    request = Forward().request  # requests only: each run() below has its own executor
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--experiment", default="ref_JapaneseThickenedWorcestershireSauce_4.0_2.1_1")
@@ -117,7 +120,7 @@ def main(argv=None) -> int:
         if not todo:
             continue
         with arch_env(arch, threads, 0 if arch == "cuda" else a.cpu_cores):
-            reqs = [simulation_request(mat, exp, warm)] + [simulation_request(mat, exp, m) for m in todo]
+            reqs = [request(mat, exp, warm)] + [request(mat, exp, m) for m in todo]
             out, _ = run(reqs, 1)
         print(f"# {arch}: first simulation (6 mm, kernels compiled or loaded) {out[0].wall_seconds:.1f} s", flush=True)
         for m, res in zip(todo, out[1:]):
@@ -145,11 +148,11 @@ def main(argv=None) -> int:
         jitter = np.exp(0.15 * rng.standard_normal((a.population, 3)))
         pop = [Material(mat.eta * j[0], min(mat.n * j[1], 1.5), mat.sigma_y * j[2]) for j in jitter]
         model = replace(VALIDATED, slip_length_m=a.slip_m)
-        reqs = [simulation_request(p, exp, model) for p in pop]
+        reqs = [request(p, exp, model) for p in pop]
         base = None
         for k in a.workers:
             with arch_env("cuda", 1):
-                run([simulation_request(mat, exp, warm)], 1)  # offline cache filled before the pool starts
+                run([request(mat, exp, warm)], 1)  # offline cache filled before the pool starts
                 out, wall = run(reqs, k)
             ok = sum(r.ok for r in out)
             rate = ok / wall
@@ -160,8 +163,8 @@ def main(argv=None) -> int:
                   f"median {sim_s:.2f} s simulating each", flush=True)
         if a.cpu_workers > 0:
             with arch_env(a.cpu_engine, 1, a.cpu_cores):  # requests name the engine they were made for
-                run([simulation_request(mat, exp, warm)], 1)
-                out, wall = run([simulation_request(p, exp, model) for p in pop], a.cpu_workers)
+                run([request(mat, exp, warm)], 1)
+                out, wall = run([request(p, exp, model) for p in pop], a.cpu_workers)
             ok = sum(r.ok for r in out)
             sim_s = np.median([r.stats["sim_s"] for r in out if r.ok])
             print(f"# the same population on {a.cpu_workers} {a.cpu_engine} processes (one thread each): "

@@ -19,19 +19,18 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mpm import batch  # noqa: E402
+from mpm.forward import Forward  # noqa: E402
 from mpm.loss import video_loss  # noqa: E402
 from mpm.params import Setup  # noqa: E402
-from mpm.store import Store  # noqa: E402
 from similarity.emulation import emulate  # noqa: E402
 from similarity.presets import get_preset  # noqa: E402
 from similarity.space import Material  # noqa: E402
 from studies.design_study import records  # noqa: E402
 
 
-def pair_loss(truth, estimate, setups, preset, store, executor) -> float:
-    a = emulate(truth, setups, preset=preset, store=store, executor=executor)
-    b = emulate(estimate, setups, preset=preset, store=store, executor=executor)
+def pair_loss(truth, estimate, setups, preset, forward) -> float:
+    a = emulate(truth, setups, preset=preset, forward=forward)
+    b = emulate(estimate, setups, preset=preset, forward=forward)
     return float(np.mean([video_loss(x.frames, y.frames) for x, y in zip(a, b)]))
 
 
@@ -58,7 +57,7 @@ def main() -> None:
         sys.exit(2)
     coarse = get_preset(recs[0]["config"]["preset"])
     fine = dataclasses.replace(coarse, cell_mm=args.cell_mm)
-    store, executor = Store(args.store), batch.local_executor(args.workers)
+    forward = Forward(args.store, workers=args.workers)
     rows = []
     print(f"case criterion E_rel loss@{coarse.final.resolved().cell_mm:g}mm loss@{args.cell_mm:g}mm")
     try:
@@ -68,11 +67,11 @@ def main() -> None:
                 c = r["criteria"][crit]
                 setups = [Setup(*map(float, s.split("x"))) for s in (r["first_setup"], c["second_setup"])]
                 est = Material(**c["estimate"])
-                row = [c["e_rel"]] + [pair_loss(truth, est, setups, p, store, executor) for p in (coarse, fine)]
+                row = [c["e_rel"]] + [pair_loss(truth, est, setups, p, forward) for p in (coarse, fine)]
                 rows.append(row)
                 print(f"{r['case']:4d} {crit:16s} {row[0]:.3f} {row[1]:.2e} {row[2]:.2e}", flush=True)
     finally:
-        batch.shutdown(executor)
+        forward.close()
     a = np.array(rows)
     far = a[:, 0] > 0.1
     print(f"median loss: {np.median(a[:, 1]):.2e} coarse, {np.median(a[:, 2]):.2e} fine "

@@ -52,12 +52,12 @@ CALLGRIND = ("30x20", "2.5:2")  # a short simulation under valgrind
 
 
 def parse_model(text: str):
-    """'CELL_MM:PPC' -> Discretisation (similarity.presets); ValueError (one line) otherwise."""
-    from similarity.presets import Discretisation
+    """'CELL_MM:PPC' -> ForwardModel (mpm.forward); ValueError (one line) otherwise."""
+    from mpm.forward import ForwardModel
 
     cell, _, ppc = text.partition(":")
     try:
-        model = Discretisation(float(cell), int(ppc or 1))
+        model = ForwardModel(float(cell), int(ppc or 1))
     except ValueError:
         raise ValueError(f"model {text!r}: give CELL_MM:PPC, e.g. 1.5:1") from None
     if not (model.cell_mm > 0 and model.ppc >= 1):

@@ -17,7 +17,7 @@ import os
 import tempfile
 import time
 
-from mpm import batch
+from mpm.forward import Forward
 from mpm.store import Store
 from similarity import estimate as E
 from similarity.space import Material, Setup, e_rel
@@ -60,16 +60,16 @@ def main(argv=None):
         with tempfile.TemporaryDirectory() as d:
             store = Store(args.store or d)
             t0 = time.perf_counter()
-            with batch.local_executor(args.workers) as ex:
+            with Forward(store, workers=args.workers) as forward:
                 kw = {"propose": (lambda m, done: Setup.parse(args.second))} if args.second else {}
-                est, filmed = E.emulate_virheometry(truth, first, preset=preset, seed=seed, store=store, executor=ex, **kw)
+                est, filmed = E.emulate_virheometry(truth, first, preset=preset, seed=seed, forward=forward, **kw)
             wall = time.perf_counter() - t0
             sims = store.count()
             errs = [e_rel(truth, s.material) for s in est.stages]
             engine = engines_of(store)
             print(f"seed {seed}: wall {wall:.0f} s, {sims} simulations ({wall / max(sims, 1):.2f} s each), "
                   f"E_rel per stage {[round(v, 4) for v in errs]}, loss per stage {[round(s.loss, 5) for s in est.stages]}, "
-                  f"final loss at {est.cell_mm:g} mm / {est.ppc} ppc, setups {est.setups}, estimate {est.material}, "
+                  f"final loss at {est.model.cell_mm:g} mm / {est.model.ppc} ppc, setups {est.setups}, estimate {est.material}, "
                   f"engine {engine}", flush=True)
             rows.append((seed, errs[-1], wall, sims, engine))
     print("\n| seed | E_rel | wall s | simulations | engine |\n|---:|---:|---:|---:|---|")

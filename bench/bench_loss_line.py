@@ -13,8 +13,8 @@ import argparse
 
 import numpy as np
 
-from mpm import batch
-from similarity.estimate import Preset, emulate, simulation_request
+from mpm.forward import Forward
+from similarity.estimate import Preset, emulate
 from similarity.space import Material, Setup, denormalize, e_rel, normalize
 
 
@@ -31,16 +31,15 @@ def main(argv=None) -> int:
     preset = Preset("line", generations=1, cell_mm=args.cell_mm, ppc=args.ppc)
     truth, other = Material.parse(args.truth), Material.parse(args.other)
     setups = [Setup.parse(s) for s in args.setups]
-    footage = emulate(truth, setups, preset=preset)
+    forward = Forward()  # no store, in this process
+    footage = emulate(truth, setups, preset=preset, forward=forward)
     a, b = normalize(truth.as_array()), normalize(other.as_array())
     print(f"# truth {args.truth}, other {args.other}, cell {args.cell_mm:g} mm, ppc {args.ppc or 'default'}")
     print("\n| t | E_rel | " + " | ".join(f"loss {s}" for s in args.setups) + " | mean |")
     print("|---:|---:|" + "---:|" * (len(setups) + 1))
     for t in args.t:
         m = Material.from_array(denormalize(a + t * (b - a)))
-        jobs = [(simulation_request(m, e, preset, batch.DEFAULT_SIMULATOR), batch.experiment_id(e.frames, e.name),
-                 e.frames) for e in footage]
-        losses = batch.evaluate_losses(jobs)
+        losses = forward.losses([m], footage, preset.search)[0]
         print(f"| {t:.2f} | {e_rel(truth, m):.3f} | " + " | ".join(f"{v:.1e}" for v in losses)
               + f" | {losses.mean():.1e} |", flush=True)
     return 0

@@ -47,11 +47,14 @@ def _material(d: dict):
     return Material(float(d["eta"]), float(d["n"]), float(d["sigma_y"]))
 
 
-def _on_cells(d: dict, model) -> bool:
-    """Whether ``d`` (a run's ``discretisation`` or one of its stages) names ``model``'s cells, particles and
-    density correction (where it does not say the cells or particles: assumed so; no correction)."""
-    return ((d.get("cell_mm") is None or np.isclose(d["cell_mm"], model.cell_mm)) and d.get("ppc", model.ppc) == model.ppc
-            and bool(d.get("density_correction", False)) == model.density_correction)
+def _on_cells(record: dict, model) -> bool:
+    """Whether ``record`` (a run's result.json or one of its stages, in any layout) names ``model``'s cells,
+    particles and density correction (where it does not say the cells or particles: assumed so; no correction)."""
+    from mpm.forward import ForwardModel
+
+    said = ForwardModel.of_record(record)
+    return ((said.cell_mm is None or np.isclose(said.cell_mm, model.cell_mm))
+            and said.ppc in (None, model.ppc) and said.density_correction == model.density_correction)
 
 
 def _finish_generations(result: dict):
@@ -87,33 +90,32 @@ def rheometer_curves() -> dict:
 def score(out: Path, paper, curve, workers: int, others=()) -> dict:
     """Loss of our estimate and the paper's (and of the materials ``others``) under the run's final forward model,
     and their flow-curve RMS."""
-    from mpm import batch
+    from mpm.forward import Forward
     from similarity.posterior import load_run
-    from similarity.presets import simulation_request
     from surrogate.rheometer import log_stress_rms
 
-    run = load_run(out)
-    result = run.result
-    model = run.preset.final
+    with Forward(out / "store", workers=workers) as forward:
+        run = load_run(out, forward=forward)
+        result = run.result
+        model = run.preset.final
 
-    def loss(m):
-        jobs = [(simulation_request(m, e, model, run.simulator), batch.experiment_id(e.frames, e.name), e.frames)
-                for e in run.experiments]
-        with batch.local_executor(workers) as ex:
-            return float(np.mean(batch.evaluate_losses(jobs, store=run.store, executor=ex)))
+        def loss(m):
+            return float(np.mean(run.forward.losses([m], run.experiments, model)))
 
+        losses = {"loss_ours": loss(run.estimate), "loss_paper": loss(paper)}
+        others_losses = [loss(m) for m in others]
     stage1 = _material(result["stages"][0]["material"]) if result.get("stages") else None
     return {
         "setups": [f"{e.width_mm:g}x{e.height_mm:g}" for e in run.experiments],
         "estimate": run.estimate.to_dict(), "paper": paper.to_dict(),
-        "discretisation": model.resolved().to_dict(),
-        "loss_ours": loss(run.estimate), "loss_paper": loss(paper),
+        "discretisation": model.resolved().to_dict(), **losses,
         "rms_ours": log_stress_rms(run.estimate, curve), "rms_paper": log_stress_rms(paper, curve),
         "rms_stage1": None if stage1 is None else log_stress_rms(stage1, curve),
         "stage1": None if stage1 is None else stage1.to_dict(),
         "simulations": result.get("simulations_run"), "from_store": result.get("results_from_store"),
         "wall_seconds": result.get("wall_seconds"),
-        "others": [{"material": m.to_dict(), "loss": loss(m), "rms": log_stress_rms(m, curve)} for m in others],
+        "others": [{"material": m.to_dict(), "loss": v, "rms": log_stress_rms(m, curve)}
+                   for m, v in zip(others, others_losses)],
     }
 
 
@@ -153,7 +155,7 @@ def main(argv=None) -> int:
         p.error("--slip-mm (every stage) and --finish-slip-mm (the finishing stage) exclude each other")
     others = parse_materials(p, args.score)
     from similarity import presets
-    from similarity.run_folder import slip_length_of
+    from similarity.run_folder import model_of
 
     try:
         preset = presets.get_preset(args.preset)
@@ -198,8 +200,8 @@ def main(argv=None) -> int:
         if (out / "result.json").exists():
             result = json.loads((out / "result.json").read_text())
             done = (result.get("preset") == args.preset and result.get("seed", 0) == args.seed
-                    and np.isclose(slip_length_of(result), slip, rtol=1e-9, atol=0)
-                    and _on_cells(result.get("discretisation") or {}, final)
+                    and np.isclose(model_of(result).slip_length_m or 0.0, slip, rtol=1e-9, atol=0)
+                    and _on_cells(result, final)
                     and _on_cells((result.get("stages") or [{}])[0], preset.search.resolved())
                     and _finish_generations(result) in (None, preset.finish_generations))
         if not done:

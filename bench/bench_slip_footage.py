@@ -27,11 +27,10 @@ from bench_real_estimates import SLUGS, parse_materials, rheometer_curves  # noq
 
 
 def main(argv=None) -> int:
-    from mpm import batch
     from mpm import experiment as xp
     from mpm.datasets import manifest, real_world_dir
-    from mpm.store import Store
-    from similarity.presets import VALIDATED, simulation_request
+    from mpm.forward import Forward
+    from similarity.presets import VALIDATED
     from similarity.space import Material
     from surrogate.rheometer import fit_herschel_bulkley
 
@@ -52,11 +51,11 @@ def main(argv=None) -> int:
         p.error(f"--cell-mm {args.cell_mm}: give a cell width > 0 in mm")
     slips = [float(v) * 1e-3 for v in args.slips_mm.split(",")]
     curves = rheometer_curves()
-    rows, store = manifest(), Store(args.store)
+    rows = manifest()
     extra = "".join(f" {m.eta:g}, {m.n:g}, {m.sigma_y:g} |" for m in others)
     print(f"| material | slip mm | cell mm | particles per cell per axis | rheometer fit | Table 1 |{extra}")
     print("|---|---:|---:|---:|---|---|" + "---|" * len(others))
-    with batch.local_executor(args.workers) as ex:
+    with Forward(args.store, workers=args.workers) as forward:
         for name, slug in SLUGS.items():
             if args.only and slug not in args.only:
                 continue
@@ -68,9 +67,7 @@ def main(argv=None) -> int:
             for b in slips:
                 model = dataclasses.replace(VALIDATED, slip_length_m=b, cell_mm=args.cell_mm, ppc=args.ppc,
                                             density_correction=args.density_correction).resolved()
-                jobs = [(simulation_request(m, e, model), batch.experiment_id(e.frames, e.name), e.frames)
-                        for m in refs for e in exps]
-                losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(refs), len(exps))
+                losses = forward.losses(refs, exps, model)
                 cells = [f"{np.mean(row):.5f} ({', '.join(f'{v:.4f}' for v in row)})" for row in losses]
                 print(f"| {name} | {b * 1e3:g} | {model.cell_mm:g} | {model.ppc} | {' | '.join(cells)} |", flush=True)
     return 0

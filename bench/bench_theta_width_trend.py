@@ -21,9 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mpm import batch  # noqa: E402
-from mpm.store import Store  # noqa: E402
-from similarity.emulation import emulate, probe_jobs  # noqa: E402
+from mpm.forward import Forward  # noqa: E402
+from similarity.emulation import emulate, probe_losses  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
 from similarity.space import Material, Setup  # noqa: E402
 from studies.landscapes import grid_offsets, match  # noqa: E402
@@ -49,7 +48,7 @@ def main(argv=None) -> int:
     ap.add_argument("--store", default="bench-theta-width-store", help="simulation store folder")
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args(argv)
-    store, ex = Store(a.store), batch.local_executor(a.workers)
+    forward = Forward(a.store, workers=a.workers)
     block = grid_offsets(GRID, HALF_WIDTH)
     reference = load_theta("reference")
     setups = [Setup(w, HEIGHT_MM) for w in a.widths]
@@ -64,14 +63,13 @@ def main(argv=None) -> int:
             for cell in a.cells:
                 t0 = time.perf_counter()
                 preset = Preset("bench", generations=1, cell_mm=cell, ppc=a.ppc)
-                shots = emulate(m, setups, density=1000.0, preset=preset, store=store, executor=ex)
-                jobs = [j for shot in shots for j in probe_jobs(m, shot, block, preset)]
-                losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(setups), -1)
+                shots = emulate(m, setups, density=1000.0, preset=preset, forward=forward)
+                losses = probe_losses([(m, shot) for shot in shots], block, preset.search, forward)
                 cs = [match(m, row, GRID, HALF_WIDTH)["C_Pa"] for row in losses]
                 print(f"  MPM, {cell:g} mm cells, {a.ppc} per axis: {' / '.join(f'{c:5.1f}' for c in cs)}"
                       f"   ({time.perf_counter() - t0:.0f} s)", flush=True)
     finally:
-        batch.shutdown(ex)
+        forward.close()
     return 0
 
 

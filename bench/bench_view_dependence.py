@@ -21,10 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mpm import batch  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
-from mpm.store import Store  # noqa: E402
-from similarity.emulation import emulate, probe_jobs  # noqa: E402
+from mpm.forward import Forward  # noqa: E402
+from similarity.emulation import emulate, probe_losses  # noqa: E402
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
 from similarity.space import Material, Setup  # noqa: E402
@@ -56,7 +55,7 @@ def main(argv=None) -> int:
     ap.add_argument("--store", default="bench-view-store", help="simulation store folder")
     ap.add_argument("--workers", type=int, default=2)
     a = ap.parse_args(argv)
-    store, ex = Store(a.store), batch.local_executor(a.workers)
+    forward = Forward(a.store, workers=a.workers)
     preset = Preset("bench", generations=1, cell_mm=a.cell_mm, ppc=1)
     views = {"front": Camera.default(), f"swung {a.yaw:g} deg": swung(Camera.default(), a.yaw)}
     offsets = stencil(a.fd_step)
@@ -68,8 +67,8 @@ def main(argv=None) -> int:
             m, setup = Material(*mat), Setup(w, h)
             normals = []
             for name, camera in views.items():
-                shot = emulate(m, [setup], preset=preset, camera=camera, store=store, executor=ex)[0]
-                losses = batch.evaluate_losses(probe_jobs(m, shot, offsets, preset), store=store, executor=ex)
+                shot = emulate(m, [setup], preset=preset, camera=camera, forward=forward)[0]
+                losses = probe_losses([(m, shot)], offsets, preset.search, forward)[0]
                 spec = spectrum(hessian_from_stencil(losses, a.fd_step))
                 normals.append(spec.q_max)
                 print(f"  {mat} in {setup} mm, {name:>14}: q_max {np.round(spec.q_max, 3)}, "
@@ -78,7 +77,7 @@ def main(argv=None) -> int:
             print(f"    angle between the views' normals: {angles[-1]:.1f} deg   ({time.perf_counter() - t0:.0f} s)",
                   flush=True)
     finally:
-        batch.shutdown(ex)
+        forward.close()
     print(f"median angle over {len(angles)} pairs: {np.median(angles):.1f} deg (max {max(angles):.1f})")
     return 0
 

@@ -34,8 +34,8 @@ from mpm.store import SimRequest, SimResult, Store, digest
 DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
 
 # Source files of this package that do not change what a simulation computes.
-_NOT_SIMULATION = {"store.py", "batch.py", "datasets.py", "experiment.py", "loss.py", "shear.py", "ranges.py",
-                   "__init__.py"}
+_NOT_SIMULATION = {"store.py", "store_index.py", "batch.py", "forward.py", "datasets.py", "experiment.py", "loss.py",
+                   "shear.py", "ranges.py", "__init__.py"}
 
 
 # -- requests --------------------------------------------------------------------------------------
@@ -50,9 +50,10 @@ def camera_json(camera) -> str | None:
 def request_for(material, setup, *, density: float, depth_mm: float = 40.0, camera=None, cell_mm=None,
                 ppc: int | None = None, dim: int = 3, flow_rule: str = "paper", precision: str = "f32",
                 image_size=(960, 540), simulator: str = DEFAULT_SIMULATOR, slip_length_m=None,
-                density_correction: bool = False) -> SimRequest:
+                density_correction: bool = False, engine: str | None = None) -> SimRequest:
     """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``),
-    for the engine that ``$VIRHEO_ARCH`` chooses (ValueError, one line, for an unknown or unavailable one)."""
+    for ``engine`` (None: the one that ``$VIRHEO_ARCH`` chooses; ValueError, one line, for an unknown or
+    unavailable one)."""
     return SimRequest(
         eta=float(material.eta), n=float(material.n), sigma_y=float(material.sigma_y),
         width_mm=float(setup.width_mm), height_mm=float(setup.height_mm), density=float(density),
@@ -61,7 +62,7 @@ def request_for(material, setup, *, density: float, depth_mm: float = 40.0, came
         slip_length_m=None if slip_length_m is None else float(slip_length_m),
         density_correction=bool(density_correction), dim=int(dim), flow_rule=str(flow_rule),
         precision=str(precision), image_size=tuple(int(v) for v in image_size),
-        simulator=simulator, code_version=code_version(simulator), engine=runtime.engine_for(str(precision)),
+        simulator=simulator, code_version=code_version(simulator), engine=engine or runtime.engine_for(str(precision)),
     )
 
 

@@ -6,9 +6,10 @@ canonical JSON.  A finished simulation is stored as
 
 * ``sims/<key[:2]>/<key>.npz``: silhouettes packed with ``np.packbits``, front position per frame,
   frame times, the solver's stats and the request itself;
-* one row in ``index.sqlite`` (table ``sims``) with the request, status (``ok`` / ``failed``),
-  error text and wall time.  Failed simulations are remembered too: the simulator is
-  deterministic for a given request, so a failure is a result (the optimiser sees NaN).
+* one row in ``index.sqlite`` (table ``sims``, :mod:`mpm.store_index`) with the request, status (``ok`` /
+  ``failed``), error text, wall time, and the request's material and setting (what :meth:`Store.materials`
+  searches).  Failed simulations are remembered too: the simulator is deterministic for a given request, so a
+  failure is a result (the optimiser sees NaN).
 
 Video losses against an experiment are cached per (request key, experiment id) in ``losses``;
 CMA-ES checkpoints (any picklable object) live in ``checkpoints/<run_id>.pkl`` with the previous
@@ -36,23 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import atomic_write, canonical_json, digest, json_default, pack, unpack  # noqa: F401 (re-exported)
-
-_SCHEMA = """
-CREATE TABLE IF NOT EXISTS sims (
-    key TEXT PRIMARY KEY,
-    request TEXT NOT NULL,
-    status TEXT NOT NULL,
-    error TEXT,
-    wall_seconds REAL,
-    created REAL NOT NULL
-);
-CREATE TABLE IF NOT EXISTS losses (
-    key TEXT NOT NULL,
-    experiment TEXT NOT NULL,
-    loss REAL,
-    PRIMARY KEY (key, experiment)
-);
-"""
+from mpm.store_index import INSERT_SIM, open_index
 
 
 @dataclass(frozen=True)
@@ -106,6 +91,11 @@ class SimRequest:
         return digest(self.to_dict())
 
     @property
+    def setting_key(self) -> str:
+        """Digest of everything but the material: requests that differ only in the material share it."""
+        return digest({k: v for k, v in self.to_dict().items() if k not in ("eta", "n", "sigma_y")})
+
+    @property
     def material(self) -> tuple:
         return (self.eta, self.n, self.sigma_y)
 
@@ -127,6 +117,15 @@ class SimResult:
     @property
     def ok(self) -> bool:
         return self.error is None
+
+
+def _setting_of(request_json: str) -> tuple:
+    """(setting key, eta, n, sigma_y) of a request in the index (all None for one that does not parse)."""
+    try:
+        r = SimRequest.from_dict(json.loads(request_json))
+    except (ValueError, TypeError):
+        return (None, None, None, None)
+    return (r.setting_key, *r.material)
 
 
 class StoreWarning(UserWarning):
@@ -165,18 +164,7 @@ class Store:
         return self.root / "index.sqlite"
 
     def _open_index(self) -> sqlite3.Connection:
-        db = sqlite3.connect(self.index_path, timeout=60.0, isolation_level=None)
-        try:
-            db.execute("PRAGMA journal_mode=WAL")
-            db.execute("PRAGMA synchronous=NORMAL")
-            ok = db.execute("PRAGMA quick_check").fetchone()
-            if ok is None or ok[0] != "ok":
-                raise sqlite3.DatabaseError(f"integrity check failed: {ok[0] if ok else 'no answer'}")
-            db.executescript(_SCHEMA)
-        except BaseException:
-            db.close()
-            raise
-        return db
+        return open_index(self.index_path, _setting_of)
 
     def _array_files(self):
         base = self.root / "sims"
@@ -204,18 +192,19 @@ class Store:
                     request = json.loads(str(z["request"]))
                     wall = float(z["wall_seconds"]) if "wall_seconds" in z.files else float("nan")
                     unpack(z["silhouettes"], z["shape"]) if z["shape"].size else None
-                key = SimRequest.from_dict(request).key
+                req = SimRequest.from_dict(request)
+                key = req.key
             except (*_UNREADABLE, TypeError):
                 skipped += 1
                 continue
             if key != path.stem:
                 skipped += 1
                 continue
-            rows.append((key, canonical_json(request), "ok", None, wall, path.stat().st_mtime))
+            rows.append((key, canonical_json(request), "ok", None, wall, path.stat().st_mtime,
+                         req.setting_key, *req.material))
         with db:
             db.execute("BEGIN IMMEDIATE")
-            db.executemany("INSERT OR REPLACE INTO sims (key, request, status, error, wall_seconds, created) "
-                           "VALUES (?,?,?,?,?,?)", rows)
+            db.executemany(INSERT_SIM, rows)
         what = (f"store index {self.index_path} was damaged ({str(error).splitlines()[0]}); moved to {aside.name}"
                 if error is not None else f"store index {self.index_path} had no entries")
         self._warn("index", f"{what}; rebuilt from {len(rows)} intact simulations on disk"
@@ -282,8 +271,8 @@ class Store:
         with self._db:  # sqlite3 context: BEGIN ... COMMIT
             self._db.execute("BEGIN IMMEDIATE")
             self._db.execute(
-                "INSERT OR REPLACE INTO sims (key, request, status, error, wall_seconds, created) VALUES (?,?,?,?,?,?)",
-                (key, canonical_json(request.to_dict()), status, result.error, float(result.wall_seconds), time.time()),
+                INSERT_SIM, (key, canonical_json(request.to_dict()), status, result.error, float(result.wall_seconds),
+                             time.time(), request.setting_key, *request.material),
             )
 
     def count(self, status: str | None = None) -> int:
@@ -295,6 +284,18 @@ class Store:
     def requests(self) -> list[SimRequest]:
         rows = self._db.execute("SELECT request FROM sims ORDER BY created").fetchall()
         return [SimRequest.from_dict(json.loads(r[0])) for r in rows]
+
+    def materials(self, settings) -> list[tuple[float, float, float]]:
+        """Materials (eta, n, sigma_y) stored (ok or failed) in every one of ``settings`` (``SimRequest.setting_key``
+        values), in the order they were first simulated."""
+        settings = sorted(set(settings))
+        if not settings:
+            return []
+        rows = self._db.execute(
+            f"SELECT eta, n, sigma_y FROM sims WHERE setting IN ({','.join('?' * len(settings))}) "
+            "GROUP BY eta, n, sigma_y HAVING COUNT(DISTINCT setting) = ? ORDER BY MIN(created), MIN(rowid)",
+            (*settings, len(settings))).fetchall()
+        return [tuple(r) for r in rows]
 
     # -- losses --------------------------------------------------------------------------------
     def get_loss(self, request: SimRequest, experiment_id: str) -> float | None:

@@ -42,8 +42,7 @@ def quick_study(out_dir, context) -> Path:
     folder = Path(out_dir) / QUICK_FOLDER
     if not (folder / LS.RESULT_FILE).is_file():
         config = LS.StudyConfig(materials=2, setups_per_material=1, grid=3, half_width=0.05, fd_step=0.05, preset="demo")
-        LS.run(folder, config, store=context.resolved_store(out_dir), executor=context.executor,
-               simulator=_simulator(), plots=0)
+        LS.run(folder, config, forward=context.resolved_forward(out_dir).with_simulator(_simulator()), plots=0)
     return folder
 
 
@@ -72,7 +71,7 @@ def conditioning(out_dir, quick: bool, context, figure: str) -> dict:
         if not (folder / CONDITIONING_FILE).is_file():
             material = Material(**data["pairs"][0]["material"])
             LS.conditioning(folder, material, steps=2, fd_step=data["config"]["fd_step"], preset="demo",
-                            store=context.resolved_store(out_dir), executor=context.executor, simulator=_simulator())
+                            forward=context.resolved_forward(out_dir).with_simulator(_simulator()))
     else:
         base = require("conditioning", context.landscapes, figure)
         folder = next((f for f in (base, base / "conditioning") if (f / CONDITIONING_FILE).is_file()), None)

@@ -19,16 +19,18 @@ class MissingData(Exception):
 
 @dataclass
 class Context:
-    """What a figure that simulates needs: the simulation store and an executor (None: in-process)."""
+    """What a figure that simulates needs: the forward model's store and executor (:class:`mpm.forward.Forward`;
+    None: a store in the output folder, simulating in this process)."""
 
-    store: object = None
-    executor: object = None
+    forward: object = None
     landscapes: object = None  # folder of the landscape study (Figs. 6, 7, 9)
 
-    def resolved_store(self, out_dir):
-        from mpm.store import Store
+    def resolved_forward(self, out_dir):
+        from mpm.forward import Forward
 
-        return self.store if self.store is not None else Store(Path(out_dir) / "store")
+        if self.forward is None:
+            self.forward = Forward(Path(out_dir) / "store")
+        return self.forward
 
 
 def finish_stress_grid(fig, axes, out, ylabel: str) -> Path:

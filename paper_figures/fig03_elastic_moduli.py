@@ -3,7 +3,7 @@
 The paper's moduli are kappa = 1e4 Pa, mu = 1e3 Pa (section 4.2, ``mpm.scene``). Each column scales one or
 both by 10; the lower row of each material shows the difference to the x1/x1 silhouette at t = 1/3 s
 (blue: x1 only, red: scaled only) with the fraction of differing pixels averaged over the 8 frames (eq. 3).
-Simulations go through the store (``mpm.batch``) with a forward model of this module that scales the
+Simulations go through the store (``mpm.forward``) with a simulating function of this module that scales the
 moduli of ``mpm.simulate``'s scene; stiffer moduli shorten the explicit time step by up to sqrt(10).
 Usage: python -m paper_figures.fig03_elastic_moduli [OUT_DIR] [--quick]
 """
@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
+from mpm.forward import ForwardModel, blank_experiment
 from mpm.loss import frame_losses
 from paper_figures._plot import Context, crop_box, difference_rgb, pyplot, show, silhouette_rgb
 from studies.report import save_figure
@@ -61,9 +62,10 @@ def run_kappa10_mu10(request):
     return _run_scaled(request, 10.0, 10.0)
 
 
-def simulator_for(kappa_factor: int, mu_factor: int) -> str:
+def simulator_for(kappa_factor: int, mu_factor: int) -> str | None:
+    """The simulating function of the scaled moduli (None: the solver's own, x1/x1)."""
     if (kappa_factor, mu_factor) == (1, 1):
-        return batch.DEFAULT_SIMULATOR
+        return None
     return f"{__name__}:run_kappa{kappa_factor}_mu{mu_factor}"
 
 
@@ -72,16 +74,17 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     from similarity.space import Material, Setup
 
     context = context or Context()
-    store = context.resolved_store(out_dir)
+    forward = context.resolved_forward(out_dir)
     camera = Camera.default()
     setup = Setup(*SETUP_MM)
     reqs, keys = [], []
     for label, eta, n, sy, rho in MATERIALS:
+        shot = blank_experiment(setup, density=rho, camera=camera)
         for kf, mf in SCALES:
-            reqs.append(batch.request_for(Material(eta, n, sy), setup, density=rho, camera=camera,
-                                          cell_mm=CELL_MM[quick], simulator=simulator_for(kf, mf)))
+            reqs.append(forward.with_simulator(simulator_for(kf, mf)).request(Material(eta, n, sy), shot,
+                                                                            ForwardModel(CELL_MM[quick])))
             keys.append((label, kf, mf))
-    results = dict(zip(keys, batch.evaluate(reqs, store=store, executor=context.executor)))
+    results = dict(zip(keys, forward.evaluate(reqs)))
     plt = pyplot()
     fig, axes = plt.subplots(2 * len(MATERIALS), len(SCALES), figsize=(2.6 * len(SCALES), 1.9 * 2 * len(MATERIALS)),
                              dpi=100)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
+from mpm.forward import ForwardModel
 from mpm.loss import frame_losses
 from paper_figures._plot import Context, MissingData, crop_box, difference_rgb, pyplot, show, silhouette_rgb
 from studies.report import save_figure
@@ -60,15 +60,14 @@ def shared_experiments(material: str):
 
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
     context = context or Context()
-    store = context.resolved_store(out_dir)
+    forward = context.resolved_forward(out_dir)
     _, fit = rheometer_fit()
     material = fit.material
     exps, _ = shared_experiments(MATERIAL)
     cell_mm, ppc = DISCRETISATION[quick]
     rules = ("paper", "yue2015")
-    reqs = [batch.request_for(material, e, density=e.density, depth_mm=e.depth_mm, camera=e.camera, cell_mm=cell_mm,
-                              ppc=ppc, flow_rule=rule, image_size=e.image_size) for e in exps for rule in rules]
-    results = batch.evaluate(reqs, store=store, executor=context.executor)
+    reqs = [forward.request(material, e, ForwardModel(cell_mm, ppc, flow_rule=rule)) for e in exps for rule in rules]
+    results = forward.evaluate(reqs)
     plt = pyplot()
     fig, axes = plt.subplots(len(exps), 5, figsize=(15, 2.5 * len(exps)), dpi=80, squeeze=False)
     for i, e in enumerate(exps):

@@ -85,7 +85,7 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     fig.colorbar(sc, cax=fig.add_axes((0.91, 0.25, 0.015, 0.5)), label="loss (eq. 3) / largest loss of the landscape")
     fig.suptitle("Fig. 7: MPM loss landscapes (normalised material space) from two directions", fontsize=9)
     path = Path(out_dir) / "fig07_views.png"
-    from mpm.store import atomic_write
+    from mpm.files import atomic_write
     from studies.report import figure_path
 
     # 3D axes and colorbars do not take tight_layout; save directly

@@ -30,10 +30,9 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     from studies.emulation import run_study, summary
 
     context = context or Context()
-    store = context.resolved_store(out_dir)
     materials, runs, generations = SETTINGS[quick]
     cases = run_study(materials=materials, runs=runs, preset=quick_preset_name(), generations=generations,
-                      store=store, executor=context.executor)
+                      forward=context.resolved_forward(out_dir))
     write_json(Path(out_dir) / "fig10_emulation.json",
                {"summary": summary(cases), "generations": generations, "cases": [c.to_dict() for c in cases]})
     plt = pyplot()

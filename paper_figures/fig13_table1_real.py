@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
 from paper_figures._plot import Context, MissingData, flow_curves, pyplot
 from paper_figures.fig04_flow_rules import rheometer_module
 from paper_figures.fig10_setups_error import quick_preset_name
@@ -59,16 +58,12 @@ def _pairs():
     return out
 
 
-def mean_loss(material, experiments, preset, store, executor) -> float:
-    """Mean video loss (eq. 3) of ``material`` over ``experiments`` with the preset's forward model."""
-    from similarity import estimate as E
-
-    jobs = [(E.simulation_request(material, e, preset, batch.DEFAULT_SIMULATOR), batch.experiment_id(e.frames, e.name),
-             e.frames) for e in experiments]
-    return float(np.mean(batch.evaluate_losses(jobs, store=store, executor=executor)))
+def mean_loss(material, experiments, preset, forward) -> float:
+    """Mean video loss (eq. 3) of ``material`` over ``experiments`` with the preset's search model."""
+    return float(np.mean(forward.losses([material], experiments, preset.search)))
 
 
-def estimates(quick: bool, store, executor) -> list[dict]:
+def estimates(quick: bool, forward) -> list[dict]:
     """Table 1 rows: our one- and two-setup estimates, the paper's, losses and rheometer RMS."""
     from similarity import estimate as E
 
@@ -78,13 +73,12 @@ def estimates(quick: bool, store, executor) -> list[dict]:
     rh = rheometer_module()
     rows = []
     for name, exps, paper in _pairs():
-        est = E.estimate(exps, preset=preset, seed=SEED, executor=executor, store=store, generations=generations,
-                         propose=None)
+        est = E.estimate(exps, preset=preset, seed=SEED, forward=forward, generations=generations, propose=None)
         one, two = est.stages[0].material, est.material
         row = {"material": name, "setups_mm": [f"{e.width_mm:g}x{e.height_mm:g}" for e in exps],
                "one_setup": one.to_dict(), "two_setups": two.to_dict(), "paper": paper.to_dict(),
-               "loss_two_setups": mean_loss(two, exps, preset, store, executor),
-               "loss_paper": mean_loss(paper, exps, preset, store, executor),
+               "loss_two_setups": mean_loss(two, exps, preset, forward),
+               "loss_paper": mean_loss(paper, exps, preset, forward),
                "simulations": est.simulations, "preset": preset.name, "generations": generations}
         curve = curves.get(name.lower())
         if curve is not None:
@@ -114,9 +108,9 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     from similarity.space import Material
 
     context = context or Context()
-    store = context.resolved_store(out_dir)
+    forward = context.resolved_forward(out_dir)
     out_dir = Path(out_dir)
-    rows = estimates(quick, store, context.executor)
+    rows = estimates(quick, forward)
     write_json(out_dir / "table1.json", {"rows": rows})
     table = out_dir / "table1.md"
     table.parent.mkdir(parents=True, exist_ok=True)

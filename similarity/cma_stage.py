@@ -14,9 +14,9 @@ from typing import Callable, Sequence
 import cma
 import numpy as np
 
-from mpm import batch
-from mpm.store import Store, digest
-from similarity.presets import Discretisation, setup_of, simulation_request
+from mpm.files import digest
+from mpm.forward import Forward, ForwardModel
+from similarity.presets import setup_of
 from similarity.space import Material, denormalize, normalize
 
 POPSIZE = 7  # 4 + floor(3 ln 3) for 3 parameters
@@ -40,10 +40,7 @@ class Stage:
     evaluations: int  # candidate evaluations (each costs len(setups) simulations)
     simulations: int
     generations: int  # budget spent, in generations of POPSIZE draws (what the progress bar counts)
-    cell_mm: float  # discretisation of the stage's forward model
-    ppc: int
-    slip_length_m: float = 0.0  # the walls' Navier slip length (0: sticking)
-    density_correction: bool = False  # the solver's density correction
+    model: ForwardModel  # the stage's forward model, its solver defaults filled in
     history: list[dict] = field(default_factory=list)  # per generation: simulations, best loss, best x, ...
     next_setup: str | None = None
     wall_seconds: float = 0.0
@@ -55,8 +52,16 @@ class Stage:
     def to_dict(self) -> dict:
         d = asdict(self)
         d["material"] = self.material.to_dict()
+        d["model"] = self.model.to_dict()
         d.pop("archive")  # hundreds of rows; the history keeps the path
         return d
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle, also a stage checkpointed before the model was one field (its four loose fields)."""
+        if "model" not in state:
+            loose = {k: state.pop(k) for k in ("cell_mm", "ppc", "slip_length_m", "density_correction") if k in state}
+            state["model"] = ForwardModel(**loose)
+        self.__dict__.update(state)
 
 
 @dataclass
@@ -88,25 +93,26 @@ class StageState:
 class Objective:
     """Mean video loss over the stage's experiments for a batch of normalised candidates (NaN if any failed)."""
 
-    def __init__(self, experiments, model: Discretisation, simulator, store, executor, progress):
+    def __init__(self, experiments, model: ForwardModel, forward: Forward, progress):
         self.experiments = list(experiments)
-        self.exp_ids = [batch.experiment_id(e.frames, e.name) for e in self.experiments]
+        self.exp_ids = [forward.experiment_id(e) for e in self.experiments]
         self.model = model.resolved()
-        self.simulator, self.store, self.executor, self.progress = simulator, store, executor, progress
+        self.forward, self.progress = forward, progress
+
+    @staticmethod
+    def material(x) -> Material:
+        return Material.from_array(denormalize(np.clip(x, 0.0, 1.0)))
 
     def requests(self, x):
-        m = Material.from_array(denormalize(np.clip(x, 0.0, 1.0)))
-        return [simulation_request(m, e, self.model, self.simulator) for e in self.experiments]
+        return [self.forward.request(self.material(x), e, self.model) for e in self.experiments]
 
     def __call__(self, X) -> np.ndarray:
-        jobs = [(req, eid, e.frames) for x in X
-                for req, eid, e in zip(self.requests(x), self.exp_ids, self.experiments)]
         tick = None
         if self.progress:
             def tick(req, res, cached):
                 self.progress({"event": "simulation", "cached": cached})
-        losses = batch.evaluate_losses(jobs, store=self.store, executor=self.executor, on_result=tick)
-        return losses.reshape(len(X), len(self.experiments)).mean(axis=1)
+        losses = self.forward.losses([self.material(x) for x in X], self.experiments, self.model, on_result=tick)
+        return losses.mean(axis=1)
 
 
 def _stage_id(objective: Objective, x0, sigma0, seed, generations) -> str:
@@ -181,8 +187,7 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
     })
 
 
-def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: int, generations: int, store: Store,
-              executor=None, simulator: str = batch.DEFAULT_SIMULATOR,
+def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int, generations: int, forward: Forward,
               progress: Callable[[dict], None] | None = None, stage_index: int = 1,
               screened: Sequence[Sequence[float]] = (), screened_simulations: int | None = None,
               finish: bool = False) -> Stage:
@@ -193,7 +198,8 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
     and compete for its best candidate.
     """
     t0 = time.perf_counter()
-    objective = Objective(experiments, model, simulator, store, executor, progress)
+    objective = Objective(experiments, model, forward, progress)
+    store = forward.store
     run_id = _stage_id(objective, x0, sigma0, seed, generations)
     state = store.load_checkpoint(run_id)
     if isinstance(state, StageState) and state.result is not None:
@@ -226,9 +232,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
         setups=setups, x0=[float(v) for v in x0], sigma0=float(sigma0),
         material=Material.from_array(denormalize(np.clip(state.best_x, 0, 1))), loss=state.best_loss,
         evaluations=state.evaluations, simulations=state.simulations, generations=state.drawn // POPSIZE,
-        cell_mm=objective.model.cell_mm, ppc=objective.model.ppc,
-        slip_length_m=objective.model.slip_length_m, density_correction=objective.model.density_correction,
-        history=state.history,
+        model=objective.model, history=state.history,
         wall_seconds=state.wall_seconds + time.perf_counter() - t0, archive=state.archive, screened=state.screened,
         finish=finish, cma_iterations=state.generation,
     )
@@ -236,8 +240,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: Discretisation, seed: in
     return state.result
 
 
-def warm_start(previous: Stage, experiments, *, model: Discretisation, store: Store, executor=None,
-               simulator: str = batch.DEFAULT_SIMULATOR, count: int = POPSIZE,
+def warm_start(previous: Stage, experiments, *, model: ForwardModel, forward: Forward, count: int = POPSIZE,
                min_distance: float = WARM_START_SPACING,
                progress: Callable[[dict], None] | None = None) -> tuple[np.ndarray, list[list[float]]]:
     """Start of the next stage: the previous stage's best distinct candidates re-scored on ``experiments``
@@ -254,7 +257,7 @@ def warm_start(previous: Stage, experiments, *, model: Discretisation, store: St
             x = np.asarray(r[:3], float)
             if len(picked) < count and min(np.linalg.norm(x - q) for q in picked) >= spacing:
                 picked.append(x)
-    F = Objective(experiments, model, simulator, store, executor, progress)(picked)
+    F = Objective(experiments, model, forward, progress)(picked)
     if not np.isfinite(F).any():
         return picked[0], []
     best = int(np.argmin(np.where(np.isfinite(F), F, np.inf)))

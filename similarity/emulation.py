@@ -5,10 +5,10 @@ from typing import Sequence
 
 import numpy as np
 
-from mpm import batch
 from mpm.experiment import Experiment
-from mpm.store import Store
-from similarity.presets import get_preset, simulation_request
+from mpm.forward import Forward, ForwardModel, blank_experiment
+from mpm.params import WORKING_SIZE
+from similarity.presets import get_preset
 from similarity.space import Material, Setup, denormalize, normalize
 
 
@@ -19,43 +19,47 @@ def _default_camera():
 
 
 def emulate(material: Material, setups: Sequence[Setup], *, density: float = 1000.0, camera=None,
-            depth_mm: float = 40.0, preset="demo", store: Store | None = None, executor=None,
-            simulator: str = batch.DEFAULT_SIMULATOR, image_size=(960, 540)) -> list[Experiment]:
+            depth_mm: float = 40.0, preset="demo", forward: Forward | None = None,
+            image_size=WORKING_SIZE) -> list[Experiment]:
     """Footage of ``material`` in each setup, simulated at the preset's final discretisation.
 
     Returns one :class:`mpm.experiment.Experiment` per setup (``path`` None, named ``emulated_<W>x<H>``).
-    ``camera``: a Camera (e.g. ``mpm.experiment.load(dir).camera``) or None for ``Camera.default()``.
+    ``camera``: a Camera (e.g. ``mpm.experiment.load(dir).camera``) or None for ``Camera.default()``;
+    ``forward``: the store and executor that simulate (None: no store, in this process).
     """
     preset = get_preset(preset)
+    forward = forward if forward is not None else Forward()
     camera = camera if camera is not None else _default_camera()
-    shells = [Experiment(name=f"emulated_{Setup(s.width_mm, s.height_mm)}", path=None, width_mm=float(s.width_mm),
-                         height_mm=float(s.height_mm), depth_mm=float(depth_mm), density=float(density), camera=camera,
-                         frames=np.zeros((0, 0, 0), bool)) for s in setups]
-    reqs = [simulation_request(material, e, preset.final, simulator, image_size) for e in shells]
-    results = batch.evaluate(reqs, store=store, executor=executor)
-    for e, r in zip(shells, results):
+    shells = [blank_experiment(s, density=density, camera=camera, depth_mm=depth_mm, image_size=image_size,
+                               name=f"emulated_{Setup(s.width_mm, s.height_mm)}") for s in setups]
+    for e, r in zip(shells, forward.results(material, shells, preset.final)):
         if not r.ok or r.silhouettes is None:
             raise RuntimeError(f"ground-truth simulation of {e.name} failed: {r.error}")
         e.frames = r.silhouettes
     return shells
 
 
-def simulated_frames(material: Material, experiments, *, preset="footage", store: Store | None = None, executor=None,
-                     simulator: str = batch.DEFAULT_SIMULATOR) -> list:
+def simulated_frames(material: Material, experiments, *, preset="footage", forward: Forward | None = None) -> list:
     """Silhouettes of ``material`` in each experiment's setup at the preset's final discretisation (None where
     the simulation failed).  For an estimate's material these come straight from the store.
     """
-    model = get_preset(preset).final
-    reqs = [simulation_request(material, e, model, simulator) for e in experiments]
-    ex = executor if executor is not None else batch.InlineExecutor()
-    return [r.silhouettes if r.ok else None for r in batch.evaluate(reqs, store=store, executor=ex)]
+    forward = forward if forward is not None else Forward()
+    return forward.silhouettes(material, experiments, get_preset(preset).final)
 
 
-def probe_jobs(material: Material, experiment: Experiment, offsets, model,
-               simulator: str = batch.DEFAULT_SIMULATOR) -> list:
-    """:func:`mpm.batch.evaluate_losses` jobs: ``material`` moved by each of ``offsets`` (normalised material space),
-    simulated in ``experiment``'s setup at ``model`` and scored against its footage."""
-    eid = batch.experiment_id(experiment.frames, experiment.name)
-    u0 = normalize(material.as_array())
-    return [(simulation_request(Material.from_array(denormalize(u0 + du)), experiment, model, simulator), eid,
-             experiment.frames) for du in offsets]
+def probe_pairs(pairs: Sequence[tuple], offsets) -> list[tuple]:
+    """``(material, experiment)`` for each pair's material moved by each of ``offsets`` (normalised material space),
+    pair by pair."""
+    out = []
+    for m, e in pairs:
+        u0 = normalize(m.as_array())
+        out += [(Material.from_array(denormalize(u0 + du)), e) for du in offsets]
+    return out
+
+
+def probe_losses(pairs: Sequence[tuple], offsets, model: ForwardModel, forward: Forward,
+                 on_result=None) -> np.ndarray:
+    """Losses (len(pairs), len(offsets)) of the :func:`probe_pairs` of ``(material, experiment)`` pairs, simulated with
+    ``model`` and scored against each experiment's footage, all in one batch.  ``on_result`` as in
+    :meth:`mpm.forward.Forward.pair_losses`."""
+    return forward.pair_losses(probe_pairs(pairs, offsets), model, on_result).reshape(len(pairs), len(offsets))

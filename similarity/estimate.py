@@ -14,11 +14,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Sequence
 
-from mpm import batch
-from mpm.store import Store
+from mpm.forward import Forward, ForwardModel
 from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
-from similarity.presets import PRESETS, Discretisation, Preset, get_preset, setup_of, simulation_request  # noqa: F401
+from similarity.presets import PRESETS, Preset, get_preset, setup_of  # noqa: F401
 from similarity.space import LOWER, UPPER, Material, Setup, center, denormalize, e_rel, normalize
 
 BOUND_MARGIN = 0.02  # an estimate this close to a bound (fraction of the parameter's range) gets a warning
@@ -36,18 +35,14 @@ class Estimate:
     preset: str
     seed: int
     setups: list[str]
-    cell_mm: float  # discretisation at which ``loss`` was computed
-    ppc: int
-    slip_length_m: float = 0.0  # the walls' Navier slip length of that model (0: sticking)
-    density_correction: bool = False  # whether that model has the solver's density correction
+    model: ForwardModel  # the forward model at which ``loss`` was computed (the last stage's)
     warnings: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {
             "estimate": self.material.to_dict(),
             "loss": self.loss,
-            "discretisation": Discretisation(self.cell_mm, self.ppc, self.slip_length_m,
-                                             self.density_correction).to_dict(),
+            "model": self.model.to_dict(),
             "warnings": list(self.warnings),
             "setups": self.setups,
             "next_setup": None if self.next_setup is None else str(self.next_setup),
@@ -93,22 +88,16 @@ def _takes_stage(propose) -> bool:
     return any(p.name == "stage" and p.kind != p.POSITIONAL_ONLY or p.kind == p.VAR_KEYWORD for p in params)
 
 
-def default_store() -> Store:
-    return Store(Path.home() / ".cache" / "virheometry" / "store")
+DEFAULT_STORE = Path.home() / ".cache" / "virheometry" / "store"
 
 
-def _executor(executor, workers):
-    """(executor, whether we own it): the given one, else ``workers`` local processes (0: in-process)."""
-    if executor is not None:
-        return executor, False
-    if workers == 0:
-        return batch.local_executor(0), False
-    return batch.local_executor(workers), True
+def _forward(forward: Forward | None) -> tuple[Forward, bool]:
+    """(forward, whether we own it): the given one, else the default store with one worker per CPU core."""
+    return (forward, False) if forward is not None else (Forward(DEFAULT_STORE, workers=None), True)
 
 
-def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, store: Store | None = None,
-             generations: int | None = None, workers: int | None = None,
-             simulator: str = batch.DEFAULT_SIMULATOR, progress: Callable[[dict], None] | None = None,
+def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward | None = None,
+             generations: int | None = None, progress: Callable[[dict], None] | None = None,
              n_setups: int | None = None, acquire: Callable[[Setup], object] | None = None,
              propose: Callable[[Material, list], Setup | None] | None = propose_next_setup) -> Estimate:
     """Algorithm 1 on ``experiments`` (:class:`mpm.experiment.Experiment`), in order.
@@ -118,8 +107,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
     proposer that takes a keyword ``stage`` also gets the finished :class:`Stage`); with ``acquire``
     (a callable Setup -> experiment, e.g. an emulator) the proposed setup is filmed and added until
     ``n_setups`` are done.  ``generations`` overrides the preset's per-stage count (not the finishing
-    stage's).  ``executor``: any concurrent.futures Executor or dask Client; default: ``workers`` local
-    processes (0: in-process).  Returns the best evaluated candidate of the last stage.
+    stage's).  ``forward``: the store and executor that simulate (default: the store under ~/.cache, one
+    worker process per CPU core).  Returns the best evaluated candidate of the last stage.
     """
     experiments = list(experiments)
     if not experiments:
@@ -129,9 +118,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
     if generations < 1:
         raise ValueError(f"generations={generations} must be >= 1")
     n_setups = int(n_setups or len(experiments))
-    store = store if store is not None else default_store()
-    ex, own = _executor(executor, workers)
-    common = dict(store=store, executor=ex, simulator=simulator, progress=progress)
+    forward, own = _forward(forward)
+    common = dict(forward=forward, progress=progress)
     t0 = time.perf_counter()
     stages: list[Stage] = []
     x0 = normalize(center().as_array())
@@ -172,46 +160,41 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
             finish_stage(stage, [setup_of(e) for e in experiments[:n]])
     finally:
         if own:
-            batch.shutdown(ex)
+            forward.close()
     last = stages[-1]
     return Estimate(
         material=last.material, loss=last.loss, stages=stages,
         evaluations=sum(s.evaluations for s in stages), simulations=sum(s.simulations for s in stages),
         wall_seconds=time.perf_counter() - t0,
         next_setup=None if last.next_setup is None else Setup.parse(last.next_setup),
-        preset=preset.name, seed=int(seed), setups=last.setups, cell_mm=last.cell_mm, ppc=last.ppc,
-        slip_length_m=last.slip_length_m, density_correction=last.density_correction,
-        warnings=bound_warnings(last.material),
+        preset=preset.name, seed=int(seed), setups=last.setups, model=last.model, warnings=bound_warnings(last.material),
     )
 
 
 def emulate_virheometry(truth: Material, first_setup: Setup, *, n_setups: int = 2, preset="demo", seed: int = 0,
-                        density: float = 1000.0, camera=None, store: Store | None = None, executor=None,
-                        workers: int | None = None, generations: int | None = None,
-                        simulator: str = batch.DEFAULT_SIMULATOR, progress=None,
+                        density: float = 1000.0, camera=None, forward: Forward | None = None,
+                        generations: int | None = None, progress=None,
                         propose: Callable | None = propose_next_setup) -> tuple[Estimate, list]:
     """Sequential ViRheometry on emulated footage: film ``first_setup``, fit, film the proposed setup, fit again.
 
     Returns the estimate and the emulated experiments (:class:`mpm.experiment.Experiment`, in filming order).
     """
     preset = get_preset(preset)
-    store = store if store is not None else default_store()
-    ex, own = _executor(executor, workers)
+    forward, own = _forward(forward)
     filmed: list = []
 
     def acquire(setup: Setup):
-        e = emulate(truth, [setup], density=density, camera=camera, preset=preset, store=store, executor=ex,
-                    simulator=simulator)[0]
+        e = emulate(truth, [setup], density=density, camera=camera, preset=preset, forward=forward)[0]
         filmed.append(e)
         return e
 
     try:
         first = acquire(first_setup)
-        est = estimate([first], preset=preset, seed=seed, executor=ex, store=store, generations=generations,
-                       simulator=simulator, progress=progress, n_setups=n_setups, acquire=acquire, propose=propose)
+        est = estimate([first], preset=preset, seed=seed, forward=forward, generations=generations,
+                       progress=progress, n_setups=n_setups, acquire=acquire, propose=propose)
     finally:
         if own:
-            batch.shutdown(ex)
+            forward.close()
     return est, filmed
 
 

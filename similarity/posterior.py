@@ -15,7 +15,6 @@
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from typing import Callable
 
@@ -34,72 +33,31 @@ FLOW_RATES = np.logspace(-2, 4, 121)  # 1/s, the range of the flow-curve plots
 
 
 # -- posterior inputs of a run --------------------------------------------------------------------
-def _jobs(run: Run, X):
-    from mpm import batch
-    from similarity.estimate import simulation_request
-
-    ids = [batch.experiment_id(e.frames, e.name) for e in run.experiments]
-    jobs = []
-    for x in X:
-        m = Material.from_array(denormalize(np.clip(x, 0, 1)))
-        jobs += [(simulation_request(m, e, run.preset.final, run.simulator), i, e.frames)
-                 for e, i in zip(run.experiments, ids)]
-    return jobs
-
-
-def mean_losses(run: Run, X, executor=None) -> np.ndarray:
+def mean_losses(run: Run, X) -> np.ndarray:
     """Mean video loss over the run's setups for normalised candidates X (simulated where not in the store)."""
-    from mpm import batch
-
     X = np.atleast_2d(X)
     if len(X) == 0:
         return np.zeros(0)
-    losses = batch.evaluate_losses(_jobs(run, X), store=run.store, executor=executor)
-    return losses.reshape(len(X), len(run.experiments)).mean(axis=1)
+    materials = [Material.from_array(denormalize(np.clip(x, 0, 1))) for x in X]
+    return run.forward.losses(materials, run.experiments, run.preset.final).mean(axis=1)
 
 
 def archive(run: Run, center, half_width: float) -> np.ndarray:
-    """Normalised materials simulated in the store in every setup of the run with its forward settings,
+    """Normalised materials simulated in the store in every setup of the run with its forward model,
     inside the box ``center +- half_width``: the CMA-ES archive near the estimate."""
-    from similarity.estimate import simulation_request
-
-    templates = {}
-    for e in run.experiments:
-        d = simulation_request(run.estimate, e, run.preset.final, run.simulator).to_dict()
-        for k in ("eta", "n", "sigma_y"):
-            d.pop(k)
-        templates[json.dumps(d, sort_keys=True, default=str)] = e
-    counts: dict[tuple, int] = {}
-    for r in run.store.requests():
-        d = r.to_dict()
-        mat = (d.pop("eta"), d.pop("n"), d.pop("sigma_y"))
-        if json.dumps(d, sort_keys=True, default=str) in templates:
-            counts[mat] = counts.get(mat, 0) + 1
-    mats = np.array([m for m, c in counts.items() if c >= len(run.experiments)], float).reshape(-1, 3)
-    if len(mats) == 0:
-        return mats
-    X = normalize(mats)
+    X = normalize(run.forward.simulated(run.experiments, run.preset.final))
     near = np.all(np.abs(X - np.asarray(center)) <= half_width + 1e-12, axis=1)
     return X[near]
 
 
-def discretisation_error(run: Run, executor=None) -> float:
+def discretisation_error(run: Run) -> float:
     """delta_disc: loss between the estimate simulated at the run's final discretisation (the one of its
     reported loss) and at half its cell width."""
-    from mpm import batch
     from mpm.loss import video_loss
-    from similarity.presets import simulation_request
 
     model = run.preset.final.resolved()
     fine = replace(model, cell_mm=model.cell_mm / 2.0)
-
-    ex = executor if executor is not None else batch.InlineExecutor()
-
-    def frames(disc):
-        reqs = [simulation_request(run.estimate, e, disc, run.simulator) for e in run.experiments]
-        return [r.silhouettes if r.ok else None for r in batch.evaluate(reqs, store=run.store, executor=ex)]
-
-    coarse, refined = frames(model), frames(fine)
+    coarse, refined = (run.forward.silhouettes(run.estimate, run.experiments, m) for m in (model, fine))
     vals = [video_loss(a, b) for a, b in zip(coarse, refined) if a is not None and b is not None]
     return float(np.mean(vals)) if vals else 0.0
 
@@ -141,13 +99,14 @@ class Analysis:
     log_prob: Callable[[np.ndarray], np.ndarray]  # the sampled log-posterior (normalised space, vectorised)
 
 
-def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, half_width: float = 0.1,
+def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: float = 0.1,
             seed: int = 0, nwalkers: int = 32, min_ess: float = 1000.0, max_steps: int = 20000,
             discretisation: bool = True, noise_count: str = NOISE_COUNT,
             progress: Callable[[dict], None] | None = None) -> Analysis:
     """Noise scale, emulator, posterior, ellipsoids and ranked next setups of a run; writes
-    ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder."""
-    from mpm.store import digest
+    ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder.
+    ``forward``: the store and executor that simulate (default: the run's store, in this process)."""
+    from mpm.files import digest
     from similarity.design import expected_information_gain, rank_setups
     from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
     from similarity.estimate import simulated_frames
@@ -159,14 +118,13 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
         if progress:
             progress({"event": "message", "text": text})
 
-    run = load_run(folder, store=store, executor=executor)
+    run = load_run(folder, forward=forward)
     check_backend(run.folder / "posterior.h5")  # before any simulation
     x_hat = normalize(run.estimate.as_array())
-    frames = simulated_frames(run.estimate, run.experiments, preset=run.preset, store=run.store, executor=executor,
-                              simulator=run.simulator)
+    frames = simulated_frames(run.estimate, run.experiments, preset=run.preset, forward=run.forward)
     if any(f is None for f in frames):
         raise ValueError(f"{run.folder}: the estimate's simulation failed; no posterior")
-    delta = discretisation_error(run, executor) if discretisation else 0.0
+    delta = discretisation_error(run) if discretisation else 0.0
     say(f"discretisation error (loss, cell vs half cell): {delta:.5f}")
     base_noise = noise_scale(frames, [e.frames for e in run.experiments], discretisation=delta, method=noise_count)
     # The emulator's box grows (half-width doubled, a new space-filling batch each time) while the posterior
@@ -187,7 +145,7 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
         X_old = X_old[~np.any(np.all(np.abs(X_old[:, None] - known[None]) < 1e-9, axis=2), axis=1)]
         say(f"emulator box +-{half_width:g}: {len(X_old)} simulated candidates from the store, {len(X_new)} new")
         X_add = np.vstack([X_old, X_new])
-        y_add = mean_losses(run, X_add, executor)
+        y_add = mean_losses(run, X_add)
         X_all, y_all = np.vstack([X_all, X_add]), np.concatenate([y_all, y_add])
         ok = np.isfinite(y_all)
         X, y = X_all[ok], y_all[ok]

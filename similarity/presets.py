@@ -1,4 +1,4 @@
-"""Estimation presets (CMA-ES budget and forward-model discretisation) and the simulation request they imply.
+"""Estimation presets: CMA-ES budget and forward models (:class:`mpm.forward.ForwardModel`).
 
 A preset names what it is for: ``demo`` (emulated footage, about a minute on a laptop), ``footage`` (real
 footage: Algorithm 1 on a cheap model, finished at the solver's validated discretisation with slipping walls)
@@ -8,40 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import numpy as np
-
-from mpm import batch
+from mpm.forward import ForwardModel
 from similarity.space import Setup
 
 PAPER_SIGMA0 = 0.1  # stage-1 step size in [0, 1]^3: the paper's Sigma = 1 in a [0, 10]^3 box
 
-
-@dataclass(frozen=True)
-class Discretisation:
-    """The forward model of a stage: MPM cell width in mm, particles per cell per axis, the walls' Navier
-    slip length in metres and whether the solver's density correction is on; None: the solver's default (the
-    validated discretisation, sticking walls)."""
-
-    cell_mm: float | None = None
-    ppc: int | None = None
-    slip_length_m: float | None = None
-    density_correction: bool = False
-
-    def resolved(self) -> "Discretisation":
-        """The same with the solver's defaults filled in."""
-        from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL, SLIP_LENGTH_M
-
-        return Discretisation(float(DEFAULT_CELL_MM if self.cell_mm is None else self.cell_mm),
-                              int(PARTICLES_PER_CELL if self.ppc is None else self.ppc),
-                              float(SLIP_LENGTH_M if self.slip_length_m is None else self.slip_length_m),
-                              bool(self.density_correction))
-
-    def to_dict(self) -> dict:
-        return {"cell_mm": self.cell_mm, "ppc": self.ppc, "slip_length_m": self.slip_length_m,
-                "density_correction": self.density_correction}
-
-
-VALIDATED = Discretisation()  # the solver's default: converged against a 2x finer run on the shared footage
+VALIDATED = ForwardModel()  # the solver's default: converged against a 2x finer run on the shared footage
 # real footage: the validated cells with walls slipping by one global slip length, chosen on the shared footage
 # (docs/performance.md#wall-slip)
 FOOTAGE_SLIP_LENGTH_M = 1e-3
@@ -63,18 +35,19 @@ class Preset:
     ppc: int | None = None
     sigma0: float = PAPER_SIGMA0
     finish_generations: int = 0
-    finish: Discretisation = VALIDATED
+    finish: ForwardModel = VALIDATED
     purpose: str = ""
     slip_length_m: float | None = None  # walls' Navier slip length in every stage; None: each stage's own
     density_correction: bool = False  # the solver's density correction in every stage
 
     @property
-    def search(self) -> Discretisation:
-        return Discretisation(self.cell_mm, self.ppc, self.slip_length_m, self.density_correction)
+    def search(self) -> ForwardModel:
+        """The forward model of Algorithm 1's stages."""
+        return ForwardModel(self.cell_mm, self.ppc, self.slip_length_m, self.density_correction)
 
     @property
-    def final(self) -> Discretisation:
-        """The discretisation of the last stage, i.e. of the estimate's loss."""
+    def final(self) -> ForwardModel:
+        """The forward model of the last stage, i.e. of the estimate's loss."""
         if self.finish_generations == 0:
             return self.search
         finish = self.finish if self.slip_length_m is None else replace(self.finish, slip_length_m=self.slip_length_m)
@@ -104,24 +77,3 @@ def get_preset(preset) -> Preset:
 
 def setup_of(experiment) -> Setup:
     return Setup(float(experiment.width_mm), float(experiment.height_mm))
-
-
-def image_size_of(experiment) -> tuple[int, int]:
-    frames = np.asarray(experiment.frames)
-    return int(frames.shape[-1]), int(frames.shape[-2])
-
-
-def simulation_request(material, experiment, model, simulator: str = batch.DEFAULT_SIMULATOR, image_size=None):
-    """The store/batch request that simulates ``material`` in ``experiment``'s setup and camera.
-
-    ``model``: a :class:`Discretisation`, or a :class:`Preset` (its search model); the solver's defaults
-    are filled in, so every request names its discretisation.
-    """
-    model = (model.search if isinstance(model, Preset) else model).resolved()
-    return batch.request_for(
-        material, setup_of(experiment), density=float(experiment.density), depth_mm=float(experiment.depth_mm),
-        camera=experiment.camera, cell_mm=model.cell_mm, ppc=model.ppc,
-        slip_length_m=model.slip_length_m or None,  # sticking walls keep the key they always had
-        density_correction=model.density_correction,
-        image_size=image_size or image_size_of(experiment), simulator=simulator,
-    )

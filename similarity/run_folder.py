@@ -10,20 +10,21 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import read_json
+from mpm.forward import Forward, ForwardModel
 from similarity.space import Material
 
 
 @dataclass
 class Run:
-    """A finished ``virheo estimate`` / ``virheo demo`` folder, its experiments and store."""
+    """A finished ``virheo estimate`` / ``virheo demo`` folder, its experiments and the forward model's store and
+    executor (with the run's own simulating function)."""
 
     folder: Path
     result: dict
     estimate: Material
     experiments: list
     preset: object
-    simulator: str
-    store: object
+    forward: Forward
     truth: Material | None = None
     setups: list = field(default_factory=list)
 
@@ -62,21 +63,20 @@ def read_posterior(folder) -> dict:
     return s
 
 
-def density_correction_of(result: dict) -> bool:
-    """Whether a run's final model had the solver's density correction, from its ``result.json``."""
-    return bool((result.get("discretisation") or {}).get("density_correction", False))
+def model_of(result: dict) -> ForwardModel:
+    """The forward model of a run's loss, from its ``result.json`` (new or old layout, :meth:`ForwardModel.of_record`;
+    runs that do not say had sticking walls); one-line ValueError when it is not a model."""
+    try:
+        return ForwardModel.of_record(result)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"result.json: bad forward model ({str(exc).splitlines()[0]})") from None
 
 
-def slip_length_of(result: dict) -> float:
-    """The walls' slip length in metres a run was estimated with, from its ``result.json`` (runs that do not
-    say it had sticking walls)."""
-    return float((result.get("discretisation") or {}).get("slip_length_m", 0.0))
+def load_run(folder, *, forward: Forward | None = None) -> Run:
+    """Read ``folder/result.json`` and rebuild its experiments (folders, or emulated footage from the store).
 
-
-def load_run(folder, *, store=None, executor=None) -> Run:
-    """Read ``folder/result.json`` and rebuild its experiments (folders, or emulated footage from the store)."""
-    from mpm import batch
-    from mpm.store import Store
+    ``forward``: the store and executor to simulate with (default: ``folder/store``, in this process); the run
+    simulates with the simulating function its result.json names."""
     from similarity.estimate import emulate, get_preset
     from similarity.space import Setup
 
@@ -85,9 +85,9 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     path = folder / "result.json"
     preset = get_preset(result.get("preset", "demo"))
     # its own walls and solver, whatever the preset's now
-    preset = replace(preset, slip_length_m=slip_length_of(result), density_correction=density_correction_of(result))
-    simulator = result.get("simulator") or batch.DEFAULT_SIMULATOR
-    store = store if store is not None else Store(folder / "store")
+    model = model_of(result)
+    preset = replace(preset, slip_length_m=model.slip_length_m or 0.0, density_correction=model.density_correction)
+    forward = (forward if forward is not None else Forward(folder / "store")).with_simulator(result.get("simulator"))
     setups = [Setup.parse(s) for s in result.get("setups", [])]
     truth = None
     if result.get("folders"):
@@ -101,11 +101,10 @@ def load_run(folder, *, store=None, executor=None) -> Run:
         experiments = []
         for i, s in enumerate(setups):
             density = float(info[i]["density"]) if i < len(info) else 1000.0
-            experiments += emulate(truth, [s], density=density, preset=preset, store=store, executor=executor,
-                                   simulator=simulator)
+            experiments += emulate(truth, [s], density=density, preset=preset, forward=forward)
     else:
         raise ValueError(f"{path}: names neither experiment folders nor a ground truth; cannot rebuild the footage")
     if not experiments:
         raise ValueError(f"{path}: no setups")
-    return Run(folder, result, estimate, experiments, preset, simulator, store, truth,
+    return Run(folder, result, estimate, experiments, preset, forward, truth,
                setups or [Setup(e.width_mm, e.height_mm) for e in experiments])

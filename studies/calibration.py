@@ -35,7 +35,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
 from similarity.posterior import NOISE_COUNT
 from similarity.space import Material, Setup, denormalize, e_rel, normalize
 from studies.report import finished_case, finished_cases, save_figure, write_json, write_study
@@ -127,7 +126,7 @@ def _config(preset, generations, new_simulations, half_width, seed, min_ess, max
             "simulator": simulator, "noise_count": noise_count}
 
 
-def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *, config: dict, store, executor,
+def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *, config: dict, forward,
              progress=None) -> dict:
     """Footage, estimate, posterior and credible levels of one case; the record is kept in ``folder/case.json``
     and read back (nothing recomputed) when it is there with the same configuration."""
@@ -142,25 +141,26 @@ def run_case(folder, index: int, truth: Material, setup: Setup, setting: str, *,
         return rec
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    store = forward.store
     stored = store.count() if store is not None else 0
     sim = config["simulator"]
     # 1. footage, as an experiment folder (the estimate and the posterior read it like real footage)
-    shot = E.emulate(truth, [setup], density=DENSITY, preset=footage_preset(config["preset"], setting), store=store,
-                     executor=executor, simulator=sim)[0]
+    shot = E.emulate(truth, [setup], density=DENSITY, preset=footage_preset(config["preset"], setting),
+                     forward=forward)[0]
     footage = folder / f"footage_{setup}"
     write_experiment(footage, shot.frames, width_mm=setup.width_mm, height_mm=setup.height_mm, camera=shot.camera,
           density=DENSITY)
     exp = load(footage)
     # 2. one-setup estimate
     seed = config["seed"] + index
-    est = E.estimate([exp], preset=config["preset"], seed=seed, executor=executor, store=store,
-                     generations=config["generations"], simulator=sim, progress=progress, propose=None)
+    est = E.estimate([exp], preset=config["preset"], seed=seed, forward=forward,
+                     generations=config["generations"], progress=progress, propose=None)
     t_est = time.perf_counter() - t0
     result = est.to_dict() | {"folders": [str(footage.resolve())], "simulator": sim, "truth": truth.to_dict(),
                               "e_rel": e_rel(truth, est.material)}
     write_json(folder / "result.json", result)
     # 3. the posterior of `virheo report`
-    a = analyse(folder, store=store, executor=executor, new_simulations=config["new_simulations"],
+    a = analyse(folder, forward=forward, new_simulations=config["new_simulations"],
                 half_width=config["half_width"], seed=seed, min_ess=config["min_ess"],
                 max_steps=config["max_steps"], discretisation=True, noise_count=config["noise_count"],
                 progress=progress)
@@ -192,12 +192,12 @@ def case_folder(out, setting: str, index: int) -> Path:
 
 def run_study(out, *, cases: int = 20, settings=SETTINGS, preset="demo", generations: int | None = None,
               new_simulations: int = 24, half_width: float = 0.1, seed: int = 0, min_ess: float = 1000.0,
-              max_steps: int = 20000, store=None, executor=None, progress=None,
-              simulator: str = batch.DEFAULT_SIMULATOR, noise_count: str = NOISE_COUNT) -> dict:
-    """Run (or resume) ``cases`` cases in each of ``settings``, case by case, and write the outputs."""
+              max_steps: int = 20000, forward, progress=None, noise_count: str = NOISE_COUNT) -> dict:
+    """Run (or resume) ``cases`` cases in each of ``settings``, case by case, and write the outputs;
+    ``forward`` (:class:`mpm.forward.Forward`) simulates."""
     for s in settings:
         footage_preset(preset, s)  # unknown settings stop here
-    config = _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, simulator,
+    config = _config(preset, generations, new_simulations, half_width, seed, min_ess, max_steps, forward.simulator,
                      noise_count)
     t0 = time.perf_counter()
     for i, (truth, setup) in enumerate(design(cases, seed)):
@@ -205,7 +205,7 @@ def run_study(out, *, cases: int = 20, settings=SETTINGS, preset="demo", generat
             if progress:
                 progress({"event": "message", "text": f"case {i + 1}/{cases} ({s}): eta={truth.eta:.3g} "
                           f"n={truth.n:.3g} sigma_y={truth.sigma_y:.3g}, setup {setup}"})
-            rec = run_case(case_folder(out, s, i), i, truth, setup, s, config=config, store=store, executor=executor,
+            rec = run_case(case_folder(out, s, i), i, truth, setup, s, config=config, forward=forward,
                            progress=progress)
             if progress:
                 lv = rec["credible_level"]

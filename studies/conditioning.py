@@ -7,9 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
 from similarity import estimate as E
-from similarity.emulation import probe_jobs
+from similarity.emulation import probe_losses
 from similarity.fd_hessian import hessian_from_stencil, spectrum, stencil
 from similarity.space import SETUP_RANGE_MM, Material, Setup, normalize
 from studies.report import save_figure, write_json
@@ -20,16 +19,14 @@ from studies.report import save_figure, write_json
 CHUNK = 64
 
 
-def _stencil_losses(material, setups, probes, preset, store, executor, simulator, density, tick) -> np.ndarray:
+def _stencil_losses(material, setups, probes, preset, forward, density, tick) -> np.ndarray:
     """Losses (len(setups), len(probes)) of the FD stencil around ``material`` against its own footage."""
-    shots = E.emulate(material, setups, density=density, preset=preset, store=store, executor=executor,
-                      simulator=simulator)
-    jobs = [j for e in shots for j in probe_jobs(material, e, probes, preset.final, simulator)]
-    return batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(setups), -1)
+    shots = E.emulate(material, setups, density=density, preset=preset, forward=forward)
+    return probe_losses([(material, e) for e in shots], probes, preset.final, forward, tick)
 
 
-def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", store,
-                 executor=None, simulator: str = batch.DEFAULT_SIMULATOR, progress=None, density: float = 1000.0) -> dict:
+def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", forward,
+                 progress=None, density: float = 1000.0) -> dict:
     """Condition number of the FD Hessian of ``material``'s loss at each setup of a ``steps`` x ``steps``
     grid over the setup space; writes ``conditioning.json`` and ``conditioning.png`` into ``out``."""
     if steps < 2:
@@ -47,8 +44,8 @@ def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.
     setups = [Setup(float(w), float(h)) for h in sizes for w in sizes]
     probes = stencil(fd_step)
     tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
-    losses = np.concatenate([_stencil_losses(material, setups[k:k + CHUNK], probes, preset, store, executor,
-                                             simulator, density, tick) for k in range(0, len(setups), CHUNK)])
+    losses = np.concatenate([_stencil_losses(material, setups[k:k + CHUNK], probes, preset, forward, density, tick)
+                             for k in range(0, len(setups), CHUNK)])
     cond = np.full(len(setups), np.nan)
     normals, eigen = [], []
     for k, row in enumerate(losses):

@@ -28,7 +28,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
 from similarity.proposers import CRITERIA, Eig, Perpendicularity, Random
 from similarity.space import e_rel
 from studies.emulation import GOOD
@@ -79,7 +78,7 @@ def _config(preset, generations, seed, simulator) -> dict:
             "simulator": simulator, "criteria": list(CRITERIA)}
 
 
-def run_case(folder, index: int, truth, first, *, config: dict, store, executor, theta, progress=None) -> dict:
+def run_case(folder, index: int, truth, first, *, config: dict, forward, theta, progress=None) -> dict:
     """The three two-setup runs of one case; the record is kept in ``folder/case.json`` and read back
     (nothing recomputed) when it is there with the same configuration."""
     from similarity import estimate as E
@@ -90,9 +89,8 @@ def run_case(folder, index: int, truth, first, *, config: dict, store, executor,
     if rec is not None:
         return rec
     t0 = time.perf_counter()
-    sim = config["simulator"]
-    footage = E.emulate(truth, [first], density=DENSITY, preset=config["preset"], store=store, executor=executor,
-                        simulator=sim)[0]
+    store = forward.store
+    footage = E.emulate(truth, [first], density=DENSITY, preset=config["preset"], forward=forward)[0]
     frames = int(len(footage.frames))
     seed = case_seed(config["seed"], index)
     runs, stage_1 = {}, []
@@ -101,8 +99,8 @@ def run_case(folder, index: int, truth, first, *, config: dict, store, executor,
         before = store.count()
         t1 = time.perf_counter()
         est, _ = E.emulate_virheometry(truth, first, n_setups=2, preset=config["preset"], seed=seed, density=DENSITY,
-                                       store=store, executor=executor, generations=config["generations"],
-                                       simulator=sim, progress=progress, propose=prop)
+                                       forward=forward, generations=config["generations"], progress=progress,
+                                       propose=prop)
         s1 = est.stages[0]
         stage_1.append((s1.material.to_dict(), s1.loss, s1.simulations, e_rel(truth, s1.material)))
         eig = prop.inner if isinstance(prop.inner, Eig) else None
@@ -132,22 +130,23 @@ def case_folder(out, index: int) -> Path:
     return Path(out) / "cases" / f"case_{index:02d}"
 
 
-def run_study(out, *, cases: int = 20, preset="demo", generations: int | None = None, seed: int = 0, store=None,
-              executor=None, progress=None, simulator: str = batch.DEFAULT_SIMULATOR) -> dict:
-    """Run (or resume) ``cases`` cases, case by case, and write the outputs."""
+def run_study(out, *, cases: int = 20, preset="demo", generations: int | None = None, seed: int = 0, forward,
+              progress=None) -> dict:
+    """Run (or resume) ``cases`` cases, case by case, and write the outputs; ``forward``
+    (:class:`mpm.forward.Forward`) simulates."""
     from studies.calibration import design
     from surrogate.theta import load
 
-    if store is None:
+    if forward.store is None:
         raise ValueError("the design study needs a simulation store (it shares stage 1 between the criteria)")
-    config = _config(preset, generations, seed, simulator)
+    config = _config(preset, generations, seed, forward.simulator)
     theta = load("reference")
     t0 = time.perf_counter()
     for i, (truth, first) in enumerate(design(cases, seed)):
         if progress:
             progress({"event": "message", "text": f"case {i + 1}/{cases}: eta={truth.eta:.3g} n={truth.n:.3g} "
                       f"sigma_y={truth.sigma_y:.3g}, first setup {first}"})
-        rec = run_case(case_folder(out, i), i, truth, first, config=config, store=store, executor=executor,
+        rec = run_case(case_folder(out, i), i, truth, first, config=config, forward=forward,
                        theta=theta, progress=progress)
         if progress:
             progress({"event": "message", "text": "  E_rel after two setups: " + ", ".join(

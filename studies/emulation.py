@@ -15,7 +15,6 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
 from similarity import estimate as E
 from similarity.space import Material, Setup, SETUP_RANGE_MM, denormalize, e_rel
 from studies.report import save_figure, write_json
@@ -77,8 +76,7 @@ class Case:
 
 
 def run_study(*, materials: int = 6, runs: int = 3, preset="demo", generations: int | None = None, seed: int = 0,
-              density: float = 1000.0, store=None, executor=None, progress=None,
-              simulator: str = batch.DEFAULT_SIMULATOR) -> list[Case]:
+              density: float = 1000.0, forward, progress=None) -> list[Case]:
     preset = E.get_preset(preset)
     g = int(generations or preset.generations)
     rng = np.random.default_rng(seed)
@@ -90,10 +88,10 @@ def run_study(*, materials: int = 6, runs: int = 3, preset="demo", generations: 
                           f"eta={truth.eta:.3g} n={truth.n:.3g} sigma_y={truth.sigma_y:.3g}, first setup {first}"})
             run_seed = seed + 1000 * i + run
             double, filmed = E.emulate_virheometry(truth, first, n_setups=2, preset=preset, seed=run_seed,
-                                                   density=density, store=store, executor=executor, generations=g,
-                                                   simulator=simulator, progress=progress)
-            single = E.estimate(filmed[:1], preset=preset, seed=run_seed, executor=executor, store=store,
-                                generations=3 * g + 1, simulator=simulator, progress=progress, propose=None)
+                                                   density=density, forward=forward, generations=g,
+                                                   progress=progress)
+            single = E.estimate(filmed[:1], preset=preset, seed=run_seed, forward=forward,
+                                generations=3 * g + 1, progress=progress, propose=None)
             cases.append(Case(i, run, truth, first, single, double))
             if progress:
                 progress({"event": "message", "text": f"  E_rel one setup {e_rel(truth, single.material):.3f}, "
@@ -174,6 +172,7 @@ def write(out, cases: list[Case], *, settings: dict, wall_seconds: float) -> dic
 def timed_study(out, **kw) -> dict:
     t0 = time.perf_counter()
     cases = run_study(**kw)
-    settings = {k: v for k, v in kw.items() if k in ("materials", "runs", "generations", "seed", "density", "simulator")}
+    settings = {k: v for k, v in kw.items() if k in ("materials", "runs", "generations", "seed", "density")}
+    settings["simulator"] = kw["forward"].simulator
     settings["preset"] = E.get_preset(kw.get("preset", "demo")).name
     return write(out, cases, settings=settings, wall_seconds=time.perf_counter() - t0)

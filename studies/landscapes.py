@@ -11,7 +11,7 @@ evaluated
 * on the 18-point finite-difference stencil of :mod:`similarity.fd_hessian` with step ``fd_step``,
   giving the Hessian, its eigenvalues, the loss normal q_max and the condition number.
 
-Every simulation goes through :func:`mpm.batch.evaluate_losses` and the store, all pairs in one
+Every simulation goes through :meth:`mpm.forward.Forward.pair_losses` and the store, all pairs in one
 batch: a killed study re-run with the same arguments serves what finished from the store. With
 ``grid=3`` and ``half_width=fd_step`` the block contains the stencil, so a pair costs 26 simulations
 plus its reference.
@@ -35,10 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
 from mpm.files import read_json
 from similarity import estimate as E
-from similarity.emulation import probe_jobs
+from similarity.emulation import probe_pairs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
 from similarity.normals import normals_at
 from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, normalize
@@ -208,8 +207,7 @@ def _prepare(out: Path, config: StudyConfig) -> list[Pair]:
     return pairs
 
 
-def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batch.DEFAULT_SIMULATOR,
-        progress=None, plots: int = 3) -> dict:
+def run(out, config: StudyConfig, *, forward, progress=None, plots: int = 3) -> dict:
     """Run (or resume) a landscape study in folder ``out``; returns the content of ``landscapes.json``."""
     config.check()
     out = Path(out)
@@ -225,18 +223,17 @@ def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batc
     say(f"{len(pairs)} pairs: simulating the ground-truth footage")
     frames = [None] * len(pairs)
     for m, idx in by_material.items():
-        shots = E.emulate(m, [pairs[i].setup for i in idx], density=config.density, preset=preset, store=store,
-                          executor=executor, simulator=simulator)
+        shots = E.emulate(m, [pairs[i].setup for i in idx], density=config.density, preset=preset, forward=forward)
         for i, e in zip(idx, shots):
             frames[i] = e
 
     block = grid_offsets(config.grid, config.half_width)
     probes = stencil(config.fd_step)
     offsets = np.vstack([block, probes])
-    jobs = [j for p, ref in zip(pairs, frames) for j in probe_jobs(p.material, ref, offsets, preset.final, simulator)]
+    jobs = probe_pairs([(p.material, ref) for p, ref in zip(pairs, frames)], offsets)
     say(f"{len(jobs)} landscape probes ({len(offsets)} per pair)")
     tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
-    losses = batch.evaluate_losses(jobs, store=store, executor=executor, on_result=tick).reshape(len(pairs), -1)
+    losses = forward.pair_losses(jobs, preset.final, tick).reshape(len(pairs), -1)
 
     records = []
     for p, row in zip(pairs, losses):
@@ -255,8 +252,9 @@ def run(out, config: StudyConfig, *, store, executor=None, simulator: str = batc
         else:
             rec["match"] = None
         records.append(rec)
+    simulations = len({forward.request(m, e, preset.final).key for m, e in jobs}) + len(pairs)
     result = {"format": FORMAT, "config": config.to_dict(), "offsets": block.tolist(),
-              "fd_stencil": probes.tolist(), "pairs": records, "simulations": len({j[0].key for j in jobs}) + len(pairs),
+              "fd_stencil": probes.tolist(), "pairs": records, "simulations": simulations,
               "wall_seconds": time.perf_counter() - t0}
     write_json(out / RESULT_FILE, result)
     for k, rec in enumerate(records[:plots]):

@@ -41,8 +41,8 @@ def test_demo_shortened_with_fake_forward_model(tmp_path):
     assert len(result["e_rel_per_stage"]) == 2 and result["e_rel_per_stage"][-1] == result["e_rel"]
     assert result["preset"] == "demo" and result["seed"] == 0
     demo = PRESETS["demo"]
-    assert result["discretisation"] == {"cell_mm": demo.cell_mm, "ppc": demo.ppc, "slip_length_m": 0.0,
-                                         "density_correction": False}
+    assert result["model"] == {"cell_mm": demo.cell_mm, "ppc": demo.ppc, "slip_length_m": 0.0,
+                               "density_correction": False, "flow_rule": "paper", "engine": None}
     assert result["warnings"] == bound_warnings(estimate)
     assert result["setups"][0] == "40x50" and len(result["setups"]) == 2
     assert result["simulations_run"] == result["simulations"]  # a fresh run: every simulation was run now

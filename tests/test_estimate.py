@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from mpm import batch
+from mpm.forward import Forward
 from mpm.store import Store
 from similarity import cma_stage
 from similarity import estimate as E
@@ -29,8 +30,7 @@ GENS = 40  # at 12 the elitist strategy ends farther than the centre on this toy
 
 
 def _footage(store, setups=((30, 50), (60, 25)), truth=TRUTH):
-    return E.emulate(truth, [Setup(*s) for s in setups], store=store, executor=batch.InlineExecutor(),
-                     simulator=SIM, image_size=SIZE)
+    return E.emulate(truth, [Setup(*s) for s in setups], forward=Forward(store, simulator=SIM), image_size=SIZE)
 
 
 def _fixed(material, done):
@@ -42,7 +42,7 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     runs = []
     for name in ("a", "b"):
         store = Store(tmp_path / name)
-        runs.append((E.estimate(exps, preset=DEMO, seed=7, workers=0, store=store, simulator=SIM, generations=GENS,
+        runs.append((E.estimate(exps, preset=DEMO, seed=7, forward=Forward(store, simulator=SIM), generations=GENS,
                                 propose=_fixed),
                      store))
     (a, store_a), (b, _) = runs
@@ -59,8 +59,9 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     assert a.stages[1].x0 == pytest.approx(min(screened, key=lambda r: r[3])[:3])
     # the returned candidate is the best evaluated one of the final stage, recomputed from the store
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
+    fw = Forward(store_a, simulator=SIM)
     best = min(
-        np.mean([store_a.get_loss(E.simulation_request(Material.from_array(denormalize(h)), e, DEMO, SIM), eid)
+        np.mean([store_a.get_loss(fw.request(Material.from_array(denormalize(h)), e, DEMO.search), eid)
                  for e, eid in zip(exps, eids)])
         for h in [gen["best_x"] for gen in a.stages[1].history] + [r[:3] for r in screened]
     )
@@ -76,7 +77,7 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
 def test_nan_from_failed_simulations_is_resampled(tmp_path):
     store = Store(tmp_path)
     exps = _footage(store, setups=((30, 50),))
-    est = E.estimate(exps, preset=DEMO, seed=3, workers=0, store=store, simulator="fake_forward:simulate_flaky",
+    est = E.estimate(exps, preset=DEMO, seed=3, forward=Forward(store, simulator="fake_forward:simulate_flaky"),
                      generations=10, propose=_fixed)
     doomed = [r for r in store.requests() if int(r.key[:8], 16) % 4 == 0]  # the ones simulate_flaky fails
     assert len(doomed) > 0 and store.count("failed") == len(doomed)
@@ -88,12 +89,12 @@ def test_nan_from_failed_simulations_is_resampled(tmp_path):
 
 def test_propose_chains_setups_with_acquire(tmp_path):
     store = Store(tmp_path)
-    est, filmed = E.emulate_virheometry(TRUTH, Setup(30, 50), n_setups=2, seed=1, store=store, workers=0,
-                                        generations=4, simulator=SIM, propose=_fixed)
+    est, filmed = E.emulate_virheometry(TRUTH, Setup(30, 50), n_setups=2, seed=1,
+                                        forward=Forward(store, simulator=SIM), generations=4, propose=_fixed)
     assert [str(setup_of(f)) for f in filmed] == ["30x50", "60x25"]
     assert [f.path for f in filmed] == [None, None] and [f.name for f in filmed] == ["emulated_30x50", "emulated_60x25"]
     assert est.setups == ["30x50", "60x25"] and [s.setups for s in est.stages] == [["30x50"], ["30x50", "60x25"]]
-    assert est.preset == "demo" and (est.cell_mm, est.ppc) == (DEMO.cell_mm, DEMO.ppc)
+    assert est.preset == "demo" and (est.model.cell_mm, est.model.ppc) == (DEMO.cell_mm, DEMO.ppc)
 
 
 class _Interrupt(Exception):
@@ -102,8 +103,7 @@ class _Interrupt(Exception):
 
 def _stage(exps, store, generations, progress=None):
     return E.run_stage(exps, x0=E.normalize(E.center().as_array()), sigma0=0.2, model=DEMO.search, seed=5,
-                       generations=generations, store=store, executor=batch.InlineExecutor(), simulator=SIM,
-                       progress=progress)
+                       generations=generations, forward=Forward(store, simulator=SIM), progress=progress)
 
 
 def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch):
@@ -146,12 +146,11 @@ _RUNNER = textwrap.dedent("""
     from mpm.store import Store
     from similarity import estimate as E
     from similarity.space import Material, Setup
-    store = Store(sys.argv[1])
-    from mpm import batch
-    exps = E.emulate(Material(3.0, 0.6, 12.0), [Setup(30, 50), Setup(60, 25)], store=store,
-                     executor=batch.InlineExecutor(), simulator="fake_forward:simulate", image_size=(192, 108))
-    est = E.estimate(exps, preset="demo", seed=11, workers=0, store=store, simulator="fake_forward:simulate",
-                     generations=10, propose=lambda m, d: Setup(60, 25))
+    from mpm.forward import Forward
+    forward = Forward(Store(sys.argv[1]), simulator="fake_forward:simulate")
+    exps = E.emulate(Material(3.0, 0.6, 12.0), [Setup(30, 50), Setup(60, 25)], forward=forward,
+                     image_size=(192, 108))
+    est = E.estimate(exps, preset="demo", seed=11, forward=forward, generations=10, propose=lambda m, d: Setup(60, 25))
     print(json.dumps(est.material.to_dict()), flush=True)
 """)
 
@@ -196,18 +195,19 @@ def test_real_solver_end_to_end_small(tmp_path, monkeypatch):
     monkeypatch.setenv("VIRHEO_THREADS", "1")
     tiny = E.Preset("tiny", generations=2, cell_mm=7.0, sigma0=0.2)
     store = Store(tmp_path)
+    forward = Forward(store)
     truth = Material(1.0, 0.7, 5.0)
-    (exp,) = E.emulate(truth, [Setup(30, 30)], preset=tiny, store=store, executor=batch.InlineExecutor())
+    (exp,) = E.emulate(truth, [Setup(30, 30)], preset=tiny, forward=forward)
     assert exp.frames.shape == (8, 540, 960) and exp.frames.any()
     # determinism: simulating the ground truth again (bypassing the store) gives the same pictures
-    again = batch.run_one(E.simulation_request(truth, exp, tiny, batch.DEFAULT_SIMULATOR))
+    again = batch.run_one(forward.request(truth, exp, tiny.search))
     assert np.array_equal(again.silhouettes, exp.frames)
-    est = E.estimate([exp], preset=tiny, seed=0, workers=0, store=store, propose=None)
+    est = E.estimate([exp], preset=tiny, seed=0, forward=forward, propose=None)
     assert store.count() == 1 + est.simulations
-    start = cma_stage.Objective([exp], tiny.search, batch.DEFAULT_SIMULATOR, store, batch.InlineExecutor(), None)
+    start = cma_stage.Objective([exp], tiny.search, forward, None)
     assert est.loss <= start([E.normalize(E.center().as_array())])[0]
     n = store.count()
-    rerun = E.estimate([exp], preset=tiny, seed=0, workers=0, store=store, propose=None)
+    rerun = E.estimate([exp], preset=tiny, seed=0, forward=forward, propose=None)
     assert store.count() == n and rerun.material == est.material
 
 
@@ -220,10 +220,11 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     assert footage.search.cell_mm > DEFAULT_CELL_MM and footage.finish_generations > 0
     exps = _footage(Store(tmp_path / "truth"))
     store = Store(tmp_path / "run")
-    est = E.estimate(exps, preset=footage, seed=2, workers=0, store=store, simulator=SIM, generations=3, propose=_fixed)
+    forward = Forward(store, simulator=SIM)
+    est = E.estimate(exps, preset=footage, seed=2, forward=forward, generations=3, propose=_fixed)
     coarse, fine = est.stages[:-1], est.stages[-1]
     assert [s.finish for s in est.stages] == [False, False, True]
-    assert [(s.cell_mm, s.ppc) for s in coarse] == [(footage.cell_mm, footage.ppc)] * 2
+    assert [(s.model.cell_mm, s.model.ppc) for s in coarse] == [(footage.cell_mm, footage.ppc)] * 2
     assert fine.setups == ["30x50", "60x25"] and fine.generations == footage.finish_generations
     assert fine.sigma0 == pytest.approx(coarse[-1].sigma0 * 2 / 3)
     # the stored requests: every simulation of the finishing stage (its warm start included) ran at the
@@ -237,17 +238,18 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     assert {r.slip_length_m for r in stored if r not in validated} == {None}
     assert not any(r.density_correction for r in stored)
     # the answer and its loss are the finishing stage's, recomputed from the store at that discretisation
-    assert est.material == fine.material and (est.cell_mm, est.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)
+    assert est.material == fine.material and est.model == footage.final.resolved() == fine.model
+    assert (est.model.cell_mm, est.model.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
-    model = footage.final.resolved()
-    assert est.loss == pytest.approx(np.mean([store.get_loss(E.simulation_request(est.material, e, model, SIM), eid)
+    assert est.loss == pytest.approx(np.mean([store.get_loss(forward.request(est.material, e, est.model), eid)
                                               for e, eid in zip(exps, eids)]))
     # it starts from the coarse estimate's re-scored neighbourhood and can only improve on it there
     assert fine.screened[0][:3] == pytest.approx(list(E.normalize(coarse[-1].material.as_array())))
     assert est.loss <= min(r[3] for r in fine.screened)
     d = est.to_dict()
-    assert d["discretisation"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL,
-                                   "slip_length_m": FOOTAGE_SLIP_LENGTH_M, "density_correction": False}
+    assert d["model"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL, "slip_length_m": FOOTAGE_SLIP_LENGTH_M,
+                          "density_correction": False, "flow_rule": "paper", "engine": None}
+    assert [s["model"] for s in d["stages"]] == [s.model.to_dict() for s in est.stages]
     assert d["warnings"] == E.bound_warnings(est.material)
     # one slip length for all stages (virheo estimate --slip-mm): the finishing stage takes it too
     assert replace(footage, slip_length_m=0.0).final == replace(VALIDATED, slip_length_m=0.0)
@@ -288,6 +290,6 @@ def test_a_run_is_reread_with_the_model_it_was_estimated_with(tmp_path, shared_d
     run = load_run(tmp_path)
     for model in (run.preset.search, run.preset.final):
         assert model.slip_length_m == slip and model.density_correction == corrected
-    req = E.simulation_request(run.estimate, run.experiments[0], run.preset.final)
+    req = run.forward.request(run.estimate, run.experiments[0], run.preset.final)
     assert req.slip_length_m == (slip or None)  # sticking requests keep the store key they always had
     assert req.density_correction == corrected

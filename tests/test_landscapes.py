@@ -6,6 +6,7 @@ import pytest
 
 import fake_forward
 from mpm import batch
+from mpm.forward import Forward
 from mpm.store import Store
 from similarity.fd_hessian import angle_deg, fd_hessian, hessian_from_stencil, spectrum, stencil
 from studies import landscapes as LS
@@ -81,22 +82,22 @@ def test_killed_study_resumes_without_recomputing(tmp_path, monkeypatch):
 
     monkeypatch.setattr(fake_forward, "simulate", dying)
     with pytest.raises(KeyboardInterrupt):
-        LS.run(tmp_path / "study", config, store=store, simulator=SIM, plots=0)
+        LS.run(tmp_path / "study", config, forward=Forward(store, simulator=SIM), plots=0)
     assert not (tmp_path / "study" / LS.RESULT_FILE).exists()
     first = list(done)
     done.clear()
     monkeypatch.setattr(fake_forward, "simulate", lambda req: (done.append(req.key), real(req))[1])
-    res = LS.run(tmp_path / "study", config, store=store, simulator=SIM, plots=1)
+    res = LS.run(tmp_path / "study", config, forward=Forward(store, simulator=SIM), plots=1)
     assert not set(first) & set(done)  # nothing finished before the kill ran again
     assert len(first) + len(done) == res["simulations"] == 2 * (8 + 18 + 1)
-    again = LS.run(tmp_path / "study", config, store=store, simulator=SIM, plots=0)
+    again = LS.run(tmp_path / "study", config, forward=Forward(store, simulator=SIM), plots=0)
     assert len(first) + len(done) == again["simulations"]  # third run: everything from the store
     assert (tmp_path / "study" / "landscape_00.png").stat().st_size > 1000
     rec = res["pairs"][0]
     assert len(rec["losses"]) == 8 and len(rec["q_max"]) == 3 and rec["match"]["C_Pa"] > 0
     # a different configuration in the same folder is refused
     with pytest.raises(ValueError, match="another configuration"):
-        LS.run(tmp_path / "study", LS.StudyConfig(materials=2, grid=2), store=store, simulator=SIM)
+        LS.run(tmp_path / "study", LS.StudyConfig(materials=2, grid=2), forward=Forward(store, simulator=SIM))
 
 
 def _one_line_exit_2(capsys, argv):
@@ -138,11 +139,11 @@ def test_conditioning_holds_one_chunk_of_footage_at_a_time(tmp_path, monkeypatch
 
     monkeypatch.setattr(E, "emulate", counting)
     m, store = Material(3.14, 0.74, 6.0), Store(tmp_path / "store")
-    whole = C.conditioning(tmp_path / "whole", m, steps=4, store=store, simulator=SIM)
+    whole = C.conditioning(tmp_path / "whole", m, steps=4, forward=Forward(store, simulator=SIM))
     assert sizes == [16]
     monkeypatch.setattr(C, "CHUNK", 5)
     sizes.clear()
-    chunked = C.conditioning(tmp_path / "chunked", m, steps=4, store=store, simulator=SIM)
+    chunked = C.conditioning(tmp_path / "chunked", m, steps=4, forward=Forward(store, simulator=SIM))
     assert sizes == [5, 5, 5, 1]
     np.testing.assert_array_equal(chunked["condition"], whole["condition"])
     assert np.all(np.isfinite(whole["condition"])) and whole["simulations"] == 16 * 19

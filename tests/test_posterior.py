@@ -3,6 +3,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from similarity.design import expected_information_gain, rank_setups
 from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
 from similarity.likelihood import correlation_area, noise_scale
 from similarity.mcmc import gaussian_moments_check, sample
-from similarity.space import Setup
+from similarity.space import Material, Setup
 from surrogate.emulator import LossEmulator, space_filling
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -220,17 +221,34 @@ def test_posterior_simulates_at_the_estimates_final_discretisation():
     of its reported loss, the preset's finishing one, not at the coarse search model."""
     from types import SimpleNamespace
 
-    from mpm import batch
     from mpm.camera import Camera
     from similarity import posterior
     from similarity.presets import get_preset
+
+    class Recorder:  # the forward model's service, recording the model of every call
+        def __init__(self):
+            self.models = []
+
+        def losses(self, materials, experiments, model, on_result=None):
+            self.models.append(model.resolved())
+            return np.zeros((len(materials), len(experiments)))
+
+        def simulated(self, experiments, model):
+            self.models.append(model.resolved())
+            return np.zeros((0, 3))
+
+        def silhouettes(self, material, experiments, model):
+            self.models.append(model.resolved())
+            return [np.zeros((8, 54, 96), bool)] * len(experiments)
 
     preset = get_preset("footage")
     final = preset.final.resolved()
     assert final.cell_mm != preset.cell_mm  # the test means something only for a coarse-to-fine preset
     exp = SimpleNamespace(width_mm=30.0, height_mm=20.0, density=1000.0, depth_mm=40.0, camera=Camera.default(),
                           frames=np.zeros((8, 54, 96), bool), name="e")
-    run = SimpleNamespace(experiments=[exp, exp], preset=preset, simulator=batch.DEFAULT_SIMULATOR)
-    jobs = posterior._jobs(run, np.full((2, 3), 0.5))
-    assert len(jobs) == 4
-    assert {(j[0].cell_mm, j[0].ppc) for j in jobs} == {(final.cell_mm, final.ppc)}
+    run = SimpleNamespace(experiments=[exp, exp], preset=preset, forward=Recorder(), estimate=Material(1.0, 0.5, 5.0))
+    assert posterior.mean_losses(run, np.full((2, 3), 0.5)).shape == (2,)
+    assert posterior.archive(run, np.full(3, 0.5), 0.1).shape == (0, 3)
+    assert run.forward.models == [final, final]
+    posterior.discretisation_error(run)
+    assert run.forward.models[2:] == [final, replace(final, cell_mm=final.cell_mm / 2)]

@@ -4,8 +4,9 @@ import sqlite3
 
 import pytest
 
-from mpm import batch
-from mpm.store import Store, StoreWarning, atomic_write
+from mpm.files import atomic_write
+from mpm.forward import Forward
+from mpm.store import Store, StoreWarning
 from similarity import estimate as E
 from similarity.space import Material, Setup
 
@@ -18,14 +19,14 @@ GENS = 5
 def reference(tmp_path_factory):
     """Footage of a known material and an undamaged estimate of it."""
     root = tmp_path_factory.mktemp("heal")
-    exps = E.emulate(Material(3.0, 0.6, 12.0), [Setup(30, 50)], store=Store(root / "truth"),
-                     executor=batch.InlineExecutor(), simulator=SIM, image_size=SIZE)
+    exps = E.emulate(Material(3.0, 0.6, 12.0), [Setup(30, 50)], forward=Forward(root / "truth", simulator=SIM),
+                     image_size=SIZE)
     est = _estimate(exps, Store(root / "ref"))
     return exps, est
 
 
 def _estimate(exps, store):
-    return E.estimate(exps, preset="demo", seed=5, workers=0, store=store, simulator=SIM, generations=GENS,
+    return E.estimate(exps, preset="demo", seed=5, forward=Forward(store, simulator=SIM), generations=GENS,
                       propose=None)
 
 

@@ -77,7 +77,7 @@ def run(args) -> int:
     if out is not None:
         from PIL import Image
 
-        from mpm.store import atomic_write
+        from mpm.files import atomic_write
 
         image = Image.fromarray(overlay_image(exp, show_swapped=flagged))
         atomic_write(out, lambda fh: image.save(fh, format="PNG"))

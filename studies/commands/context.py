@@ -157,10 +157,9 @@ def check_engine() -> str:
     return runtime.engine_name()
 
 
-def simulator() -> str:
-    from mpm import batch
-
-    return os.environ.get(SIMULATOR_ENV) or batch.DEFAULT_SIMULATOR
+def simulator() -> str | None:
+    """The simulating function ``$VIRHEO_SIMULATOR`` names, or None: the MPM solver."""
+    return os.environ.get(SIMULATOR_ENV) or None
 
 
 @dataclass
@@ -168,10 +167,8 @@ class Run:
     """What a long command works with, and what it counts for its report."""
 
     out: Path
-    store: object
-    executor: object
+    forward: object  # mpm.forward.Forward: the store and the executor
     progress: object  # callback for the estimator's progress events, or None
-    simulator: str
     engine: str = ""  # the engine that simulates (mpm.runtime.engine_name): the figures depend on its speed
     simulated: int = 0  # simulations run by this command
     from_store: int = 0  # results served from the store (simulations or cached losses)
@@ -205,20 +202,17 @@ class Run:
 @contextmanager
 def open_run(args):
     """A :class:`Run` for ``args`` (see :func:`add_run_options`); the executor is shut down afterwards."""
-    from mpm import batch
-    from mpm.store import Store
+    from mpm.forward import Forward
     from studies.report import progress_bars
 
     engine = check_engine()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    store = Store(Path(args.store) if args.store else out / "store")
-    executor = batch.connect(args.scheduler) if args.scheduler else batch.local_executor(args.workers)
     with ExitStack() as stack:
-        stack.callback(batch.shutdown, executor)
-        stack.callback(store.close)
+        forward = stack.enter_context(Forward(Path(args.store) if args.store else out / "store", workers=args.workers,
+                                              scheduler=args.scheduler, simulator=simulator()))
         bars = stack.enter_context(progress_bars(not args.quiet))
-        run = Run(out, store, executor, None, simulator(), engine)
+        run = Run(out, forward, None, engine)
 
         def progress(ev: dict) -> None:
             run.event(ev)

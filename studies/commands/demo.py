@@ -43,13 +43,11 @@ def run(args: argparse.Namespace) -> int:
         run.progress({"event": "message", "text": f"ground truth: eta={truth.eta:g} Pa s^n, n={truth.n:g}, "
                       f"sigma_y={truth.sigma_y:g} Pa; first setup {first} mm"})
         est, filmed = E.emulate_virheometry(truth, first, n_setups=2, preset=args.preset, seed=args.seed,
-                                            density=density, store=run.store, executor=run.executor,
-                                            generations=args.generations, simulator=run.simulator,
-                                            progress=run.progress)
-        frames = E.simulated_frames(est.material, filmed, preset=args.preset, store=run.store,
-                                    executor=run.executor, simulator=run.simulator)
+                                            density=density, forward=run.forward,
+                                            generations=args.generations, progress=run.progress)
+        frames = E.simulated_frames(est.material, filmed, preset=args.preset, forward=run.forward)
         result = write_estimate_report(run.out, est, filmed, frames=frames, truth=truth,
-                                       extra={"simulator": run.simulator, **run.counts()})
+                                       extra={"simulator": run.forward.simulator, **run.counts()})
     m = est.material
     print(f"truth:    eta = {truth.eta:.4g} Pa s^n, n = {truth.n:.4g}, sigma_y = {truth.sigma_y:.4g} Pa")
     print(f"estimate: eta = {m.eta:.4g} Pa s^n, n = {m.n:.4g}, sigma_y = {m.sigma_y:.4g} Pa")

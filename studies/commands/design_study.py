@@ -27,11 +27,10 @@ def run(args: argparse.Namespace) -> int:
 
     check_run_options(args)
     with open_run(args) as run:
-        stored = run.store.count()
+        stored = run.forward.store.count()
         result = D.run_study(run.out, cases=args.cases, preset=args.preset, generations=args.generations,
-                             seed=args.seed, store=run.store, executor=run.executor, progress=run.progress,
-                             simulator=run.simulator)
-        simulated = run.store.count() - stored
+                             seed=args.seed, forward=run.forward, progress=run.progress)
+        simulated = run.forward.store.count() - stored
     s = result["summary"]
     print((run.out / "design.md").read_text())
     print("E_rel <= {:g} after two setups: ".format(s["good_threshold"]) + ", ".join(

@@ -65,17 +65,16 @@ def run(args: argparse.Namespace) -> int:
         preset = replace(preset, density_correction=True)
     experiments = load_experiments(args.dirs, "estimate")
     with open_run(args) as run:
-        est = E.estimate(experiments, preset=preset, seed=args.seed, executor=run.executor, store=run.store,
-                         generations=args.generations, progress=run.progress, simulator=run.simulator)
-        frames = E.simulated_frames(est.material, experiments, preset=preset, store=run.store,
-                                    executor=run.executor, simulator=run.simulator)
+        est = E.estimate(experiments, preset=preset, seed=args.seed, forward=run.forward,
+                         generations=args.generations, progress=run.progress)
+        frames = E.simulated_frames(est.material, experiments, preset=preset, forward=run.forward)
         write_estimate_report(run.out, est, experiments, frames=frames,
                               extra={"folders": [str(Path(d).resolve()) for d in args.dirs], **run.counts()})
-    m = est.material
+    m, model = est.material, est.model
     print(f"estimate: eta = {m.eta:.4g} Pa s^n, n = {m.n:.4g}, sigma_y = {m.sigma_y:.4g} Pa "
-          f"(loss {est.loss:.5f} at {est.cell_mm:g} mm cells, {est.ppc} particle(s) per cell per axis"
-          f"{', density-corrected' if est.density_correction else ''}"
-          f"{f', walls slipping {est.slip_length_m * 1e3:g} mm' if est.slip_length_m else ''}; "
+          f"(loss {est.loss:.5f} at {model.cell_mm:g} mm cells, {model.ppc} particle(s) per cell per axis"
+          f"{', density-corrected' if model.density_correction else ''}"
+          f"{f', walls slipping {model.slip_length_m * 1e3:g} mm' if model.slip_length_m else ''}; "
           f"{run.cost_line(est.simulations)})")
     for w in est.warnings:
         sys.stderr.write(f"virheo estimate: warning: {w}\n")

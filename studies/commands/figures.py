@@ -45,8 +45,7 @@ def selected(only: str | None) -> list[str]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mpm import batch
-    from mpm.store import Store
+    from mpm.forward import Forward
     from paper_figures import FIGURES, SIMULATION_FREE
     from paper_figures._plot import Context, MissingData
 
@@ -58,9 +57,8 @@ def run(args: argparse.Namespace) -> int:
         check_engine()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    store = Store(args.store or out / "store")
-    executor = batch.local_executor(args.workers) if simulating else None
-    context = Context(store=store, executor=executor, landscapes=args.landscapes)
+    forward = Forward(args.store or out / "store", workers=args.workers if simulating else 0)
+    context = Context(forward=forward, landscapes=args.landscapes)
     made = missing = 0
     t_all = time.perf_counter()
     try:
@@ -77,6 +75,6 @@ def run(args: argparse.Namespace) -> int:
             made += 1
             print(f"{name}: {', '.join(str(p) for p in paths)} ({time.perf_counter() - t0:.0f} s)", flush=True)
     finally:
-        batch.shutdown(executor)
+        forward.close()
     print(f"{made} figure(s) made, {missing} without data, {time.perf_counter() - t_all:.0f} s in all", file=sys.stderr)
     return 0

@@ -68,8 +68,7 @@ def run_landscapes(args: argparse.Namespace) -> int:
         raise ValueError(f"--plots {args.plots} must be >= 0")
     with open_run(args) as run:
         out = run.out
-        res = LS.run(out, config, store=run.store, executor=run.executor, progress=run.progress, plots=args.plots,
-                     simulator=run.simulator)
+        res = LS.run(out, config, forward=run.forward, progress=run.progress, plots=args.plots)
     import numpy as np
 
     angles = [p["match"]["angle_fd_deg"] for p in res["pairs"] if p["match"] and "angle_fd_deg" in p["match"]]
@@ -90,8 +89,7 @@ def run_conditioning(args: argparse.Namespace) -> int:
     with open_run(args) as run:
         out = run.out
         res = LS.conditioning(out, material, steps=args.steps, fd_step=args.fd_step, preset=args.preset,
-                              store=run.store, executor=run.executor, progress=run.progress,
-                              simulator=run.simulator)
+                              forward=run.forward, progress=run.progress)
     print(f"condition numbers over {args.steps}x{args.steps} setups: min {res['min']:.3g}, median {res['median']:.3g}, "
           f"max {res['max']:.3g}; {res['simulations']} simulations, {res['wall_seconds']:.0f} s; plot {out / 'conditioning.png'}")
     return 0

@@ -38,8 +38,7 @@ def _read_rheometer(path):
 
 
 def run(args: argparse.Namespace) -> int:
-    from mpm import batch
-    from mpm.store import Store
+    from mpm.forward import Forward
     from similarity.posterior import analyse, read_result
     from studies.html_report import write_report
 
@@ -49,15 +48,11 @@ def run(args: argparse.Namespace) -> int:
     curve = _read_rheometer(args.rheometer) if args.rheometer else None  # bad files stop here, before any work
     progress = None if args.quiet else (lambda ev: print(ev["text"]) if ev.get("event") == "message" else None)
     check_engine()
-    store = Store(args.store) if args.store else None
-    executor = batch.local_executor(args.workers)
-    try:
-        analysis = analyse(folder, store=store, executor=executor, new_simulations=args.new_simulations,
+    with Forward(Path(args.store) if args.store else folder / "store", workers=args.workers) as forward:
+        analysis = analyse(folder, forward=forward, new_simulations=args.new_simulations,
                            half_width=args.half_width, seed=args.seed, min_ess=args.min_ess, max_steps=args.max_steps,
                            discretisation=not args.no_discretisation, noise_count=args.noise_count,
                            progress=progress)
-    finally:
-        batch.shutdown(executor)
     page = write_report(Path(args.out) if args.out else folder / "report", analysis, rheometer=curve)
     post = analysis.summary["posterior"]
     q5, q95 = post["quantiles"]["5"], post["quantiles"]["95"]

@@ -37,8 +37,8 @@ def run_emulation(args: argparse.Namespace) -> int:
     check_run_options(args)
     with open_run(args) as run:
         result = timed_study(run.out, materials=args.materials, runs=args.runs, preset=args.preset,
-                             generations=args.generations, seed=args.seed, store=run.store, executor=run.executor,
-                             progress=run.progress, simulator=run.simulator)
+                             generations=args.generations, seed=args.seed, forward=run.forward,
+                             progress=run.progress)
     s = result["summary"]
     print((run.out / "emulation.md").read_text())
     print(f"good: one setup {s['good_single']}/{s['cases']}, two setups {s['good_two_setups']}/{s['cases']}; "
