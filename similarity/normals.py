@@ -23,6 +23,7 @@ import numpy as np
 from poiseuille import hessian
 from surrogate.theta import ThetaMap, load
 
+from .fd_hessian import canonical_sign
 from .space import EXTENT, Material
 
 VARIANTS = ("scaled", "reference")
@@ -49,10 +50,7 @@ def top_eigenvector(h) -> np.ndarray:
     ok = tr > 0
     safe = np.where(ok[..., None, None], h / np.where(ok, tr, 1.0)[..., None, None], np.eye(3))
     _, vecs = np.linalg.eigh(safe)
-    q = vecs[..., :, -1]
-    big = np.take_along_axis(q, np.argmax(np.abs(q), axis=-1)[..., None], axis=-1)
-    q = q * np.sign(big)
-    return np.where(ok[..., None], q, np.nan)
+    return np.where(ok[..., None], canonical_sign(vecs[..., :, -1]), np.nan)
 
 
 def normals_at(params, P, L, variant: str = "scaled", units: str = "cgs") -> np.ndarray:

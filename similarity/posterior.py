@@ -149,7 +149,8 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
     ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder."""
     from mpm.store import digest
     from similarity.design import expected_information_gain, rank_setups
-    from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
+    from similarity.ellipsoid import alignment, ellipsoid
+    from similarity.fd_hessian import fd_hessian
     from similarity.estimate import simulated_frames
     from similarity.likelihood import noise_scale
     from similarity.normals import loss_normal
@@ -227,7 +228,7 @@ def analyse(folder, *, store=None, executor=None, new_simulations: int = 24, hal
     summary["ellipsoid_posterior"] = ell.to_dict()
     try:
         step = max(1e-5, 0.5 * float(np.sqrt(np.min(np.diag(post.cov)))))
-        h = finite_difference_hessian(lambda x: -noise.log_likelihood(emu.predict(x)), post.mean, step=step)
+        h = fd_hessian(lambda x: -noise.log_likelihood(emu.predict(x)), post.mean, step)
         summary["ellipsoid_laplace"] = ellipsoid(post.mean, np.linalg.inv(h), 0.9).to_dict()
     except (ValueError, np.linalg.LinAlgError):
         summary["ellipsoid_laplace"] = None
