@@ -83,7 +83,7 @@ def main(argv=None) -> int:
     from mpm.datasets import manifest, real_world_dir
     from mpm.loss import iou, video_loss
     from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED, simulation_request
-    from similarity.space import Material
+    from mpm.params import Material
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--experiment", default="ref_JapaneseThickenedWorcestershireSauce_4.0_2.1_1")

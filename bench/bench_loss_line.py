@@ -14,8 +14,9 @@ import argparse
 import numpy as np
 
 from mpm import batch
+from mpm.params import Material, Setup
 from similarity.estimate import Preset, emulate, simulation_request
-from similarity.space import Material, Setup, denormalize, e_rel, normalize
+from similarity.space import denormalize, e_rel, normalize
 
 
 def main(argv=None) -> int:

@@ -32,7 +32,7 @@ def main(argv=None) -> int:
     from mpm.datasets import manifest, real_world_dir
     from mpm.store import Store
     from similarity.presets import VALIDATED, simulation_request
-    from similarity.space import Material
+    from mpm.params import Material
     from surrogate.rheometer import fit_herschel_bulkley
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -22,10 +22,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mpm import batch  # noqa: E402
+from mpm.params import Material, Setup  # noqa: E402
 from mpm.store import Store  # noqa: E402
 from similarity.emulation import emulate, probe_jobs  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
-from similarity.space import Material, Setup  # noqa: E402
 from studies.landscapes import grid_offsets, match  # noqa: E402
 from surrogate.theta import load as load_theta  # noqa: E402
 

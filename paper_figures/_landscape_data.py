@@ -64,7 +64,7 @@ def landscapes(out_dir, quick: bool, context, figure: str) -> dict:
 def conditioning(out_dir, quick: bool, context, figure: str) -> dict:
     """The conditioning study's ``conditioning.json`` (quick: computed for the quick study's first material)."""
     if context.landscapes is None and quick and importlib.util.find_spec("studies.landscapes") is not None:
-        from similarity.space import Material
+        from mpm.params import Material
         from studies import landscapes as LS
 
         data = landscapes(out_dir, quick, context, figure)

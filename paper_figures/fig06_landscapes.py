@@ -41,7 +41,7 @@ def trace(ax, q, a: int, b: int, hw: float, color: str, label: str) -> None:
 
 
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
-    from similarity.space import Material
+    from mpm.params import Material
     from studies import landscapes as LS
 
     context = context or Context()

@@ -15,9 +15,10 @@ import cma
 import numpy as np
 
 from mpm import batch
+from mpm.params import Material
 from mpm.store import Store, digest
 from similarity.presets import Discretisation, setup_of, simulation_request
-from similarity.space import Material, denormalize, normalize
+from similarity.space import denormalize, normalize
 
 POPSIZE = 7  # 4 + floor(3 ln 3) for 3 parameters
 RESAMPLE = 3  # rounds of redrawing NaN candidates (failed simulations) within one generation

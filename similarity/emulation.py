@@ -7,9 +7,10 @@ import numpy as np
 
 from mpm import batch
 from mpm.experiment import Experiment
+from mpm.params import Material, Setup
 from mpm.store import Store
 from similarity.presets import get_preset, simulation_request
-from similarity.space import Material, Setup, denormalize, normalize
+from similarity.space import denormalize, normalize
 
 
 def _default_camera():

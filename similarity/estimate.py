@@ -15,11 +15,12 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from mpm import batch
+from mpm.params import Material, Setup
 from mpm.store import Store
 from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
 from similarity.presets import PRESETS, Discretisation, Preset, get_preset, setup_of, simulation_request  # noqa: F401
-from similarity.space import LOWER, UPPER, Material, Setup, center, denormalize, e_rel, normalize
+from similarity.space import LOWER, UPPER, center, denormalize, e_rel, normalize
 
 BOUND_MARGIN = 0.02  # an estimate this close to a bound (fraction of the parameter's range) gets a warning
 

@@ -20,23 +20,18 @@ from __future__ import annotations
 
 import numpy as np
 
+from mpm.params import material_array
 from poiseuille import hessian
 from surrogate.theta import ThetaMap, load
 
 from .fd_hessian import canonical_sign
-from .space import EXTENT, Material
+from .space import EXTENT
 
 VARIANTS = ("scaled", "reference")
 # SI -> CGS factors for (eta, n, sigma_y) and the conversions of P [Pa/m -> dyn/cm^3] and L [m -> cm]
 _CGS_PARAM = np.array([10.0, 1.0, 10.0])
 _CGS_P = 0.1
 _CGS_L = 100.0
-
-
-def _params(material) -> np.ndarray:
-    if isinstance(material, Material) or all(hasattr(material, k) for k in ("eta", "n", "sigma_y")):
-        return np.array([material.eta, material.n, material.sigma_y], dtype=float)
-    return np.asarray(material, dtype=float)
 
 
 def top_eigenvector(h) -> np.ndarray:
@@ -77,7 +72,7 @@ def normals_at(params, P, L, variant: str = "scaled", units: str = "cgs") -> np.
 def loss_normals(material, width_mm, height_mm, theta="reference", variant: str = "scaled", units: str = "cgs"):
     """Algorithm 2 for arrays of setups: returns (normals (k, 3), valid (k,)), valid meaning P L > sigma_y."""
     theta = theta if isinstance(theta, ThetaMap) else load(theta)
-    m = _params(material)
+    m = material_array(material)
     P, L = theta.pl(m[..., 0], m[..., 1], m[..., 2], width_mm, height_mm)
     valid = P * L > m[..., 2]
     q = normals_at(m, P, L, variant, units)

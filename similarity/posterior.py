@@ -22,9 +22,10 @@ from typing import Callable
 import numpy as np
 
 from mpm.files import write_json
+from mpm.params import Material
 from similarity.mcmc import QUANTILES, Posterior, check_backend, sample
 from similarity.run_folder import Run, load_run, read_posterior, read_result  # noqa: F401 (re-exported)
-from similarity.space import Material, denormalize, normalize
+from similarity.space import denormalize, normalize
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
 MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)

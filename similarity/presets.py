@@ -11,7 +11,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from mpm import batch
-from similarity.space import Setup
+from mpm.params import Setup
 
 PAPER_SIGMA0 = 0.1  # stage-1 step size in [0, 1]^3: the paper's Sigma = 1 in a [0, 10]^3 box
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import read_json
-from similarity.space import Material
+from mpm.params import Material
 
 
 @dataclass
@@ -78,7 +78,7 @@ def load_run(folder, *, store=None, executor=None) -> Run:
     from mpm import batch
     from mpm.store import Store
     from similarity.estimate import emulate, get_preset
-    from similarity.space import Setup
+    from mpm.params import Setup
 
     folder = Path(folder)
     result, estimate = read_result(folder)

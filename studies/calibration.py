@@ -36,8 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
+from mpm.params import Material, Setup
 from similarity.posterior import NOISE_COUNT
-from similarity.space import Material, Setup, denormalize, e_rel, normalize
+from similarity.space import denormalize, e_rel, normalize
 from studies.report import finished_case, finished_cases, save_figure, write_json, write_study
 
 SETTINGS = ("same", "finer")

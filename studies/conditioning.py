@@ -8,10 +8,11 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
+from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_jobs
 from similarity.fd_hessian import hessian_from_stencil, spectrum, stencil
-from similarity.space import SETUP_RANGE_MM, Material, Setup, normalize
+from similarity.space import normalize
 from studies.report import save_figure, write_json
 
 

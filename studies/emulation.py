@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
+from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
-from similarity.space import Material, Setup, SETUP_RANGE_MM, denormalize, e_rel
+from similarity.space import denormalize, e_rel
 from studies.report import save_figure, write_json
 
 GOOD = 0.1  # E_rel <= 0.1 counts as good enough (section 7.1)

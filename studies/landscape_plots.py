@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from similarity.space import Material
+from mpm.params import Material
 from studies.report import save_figure
 
 

@@ -37,11 +37,12 @@ import numpy as np
 
 from mpm import batch
 from mpm.files import read_json
+from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_jobs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
 from similarity.normals import normals_at
-from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, normalize
+from similarity.space import denormalize, normalize
 from studies.conditioning import conditioning  # noqa: F401 (re-exported)
 from studies.landscape_plots import plot_slices
 from studies.report import write_json

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mpm.params import Setup
 from similarity.design import expected_information_gain, rank_setups
 from similarity.ellipsoid import alignment, ellipsoid
 from similarity.fd_hessian import fd_hessian
 from similarity.likelihood import correlation_area, noise_scale
 from similarity.mcmc import gaussian_moments_check, sample
-from similarity.space import Setup
 from surrogate.emulator import LossEmulator, space_filling
 
 ROOT = Path(__file__).resolve().parent.parent

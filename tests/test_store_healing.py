@@ -5,9 +5,9 @@ import sqlite3
 import pytest
 
 from mpm import batch
+from mpm.params import Material, Setup
 from mpm.store import Store, StoreWarning, atomic_write
 from similarity import estimate as E
-from similarity.space import Material, Setup
 
 SIM = "fake_forward:simulate"
 SIZE = (96, 54)

@@ -32,7 +32,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from mpm.ranges import check_density
     from similarity import estimate as E
-    from similarity.space import Material, Setup
+    from mpm.params import Material, Setup
     from studies.report import write_estimate_report
 
     truth = Material.parse(args.material).check_in_space()

@@ -55,7 +55,7 @@ def run(args) -> int:
     from mpm import camera as cam
     from mpm import experiment as xp
     from mpm.ranges import check_density, check_simulable
-    from similarity.space import Material, Setup
+    from mpm.params import Material, Setup
     from studies.report import overlay_pngs, write_json
 
     material = Material.parse(args.material)
