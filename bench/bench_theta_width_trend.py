@@ -22,7 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mpm import batch  # noqa: E402
-from mpm.params import Material, Setup  # noqa: E402
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup  # noqa: E402
 from mpm.store import Store  # noqa: E402
 from similarity.emulation import emulate, probe_jobs  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
             for cell in a.cells:
                 t0 = time.perf_counter()
                 preset = Preset("bench", generations=1, cell_mm=cell, ppc=a.ppc)
-                shots = emulate(m, setups, density=1000.0, preset=preset, store=store, executor=ex)
+                shots = emulate(m, setups, density=DEFAULT_DENSITY_KG_M3, preset=preset, store=store, executor=ex)
                 jobs = [j for shot in shots for j in probe_jobs(m, shot, block, preset)]
                 losses = batch.evaluate_losses(jobs, store=store, executor=ex).reshape(len(setups), -1)
                 cs = [match(m, row, GRID, HALF_WIDTH)["C_Pa"] for row in losses]

@@ -1,5 +1,7 @@
 """Values that define a dam-break experiment: ``Material``, ``Setup`` and their validation, the paper's
-material-space and setup ranges, the flow-rule names, the frame times and the working image size.
+material-space and setup ranges, the flow-rule names, the frame times, the working image size and an
+experiment's default density and depth. It imports nothing of the project, so every floor may import it
+(docs/layers.md).
 
 Pure Python and numpy (no Taichi). SI units; setups in millimetres (``width_mm``).
 """
@@ -19,6 +21,8 @@ FLOW_RULES = ("paper", "yue2015")  # the paper's modified flow rule (eqs. 14-18)
 FPS = 24.0  # frame k of a video is at t = k / FPS
 N_FRAMES = 8
 WORKING_SIZE = (960, 540)  # (width, height) in pixels at which silhouettes are compared
+DEFAULT_DENSITY_KG_M3 = 1000.0  # a material's density where none is given (water-like)
+DEFAULT_DEPTH_MM = 40.0  # distance between the box's side walls where none is given (section 3.3)
 
 
 def frame_times() -> np.ndarray:
@@ -72,7 +76,8 @@ def setup_arrays(setup) -> tuple:
         return setup
     a = np.asarray(setup, dtype=float)
     if a.shape[-1:] != (2,):
-        raise ValueError(f"setup must be a Setup, a (width_mm, height_mm) pair or an array (..., 2); got shape {a.shape}")
+        raise ValueError(f"setup must be a Setup, a (width_mm, height_mm) pair or an array (..., 2); "
+                         f"got shape {a.shape}")
     return a[..., 0], a[..., 1]
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from mpm import batch
 from mpm.experiment import Experiment
-from mpm.params import Material, Setup
+from mpm.params import DEFAULT_DENSITY_KG_M3, DEFAULT_DEPTH_MM, WORKING_SIZE, Material, Setup
 from mpm.store import Store
 from similarity.presets import get_preset, simulation_request
 from similarity.space import denormalize, normalize
@@ -19,9 +19,9 @@ def _default_camera():
     return Camera.default()
 
 
-def emulate(material: Material, setups: Sequence[Setup], *, density: float = 1000.0, camera=None,
-            depth_mm: float = 40.0, preset="demo", store: Store | None = None, executor=None,
-            simulator: str = batch.DEFAULT_SIMULATOR, image_size=(960, 540)) -> list[Experiment]:
+def emulate(material: Material, setups: Sequence[Setup], *, density: float = DEFAULT_DENSITY_KG_M3, camera=None,
+            depth_mm: float = DEFAULT_DEPTH_MM, preset="demo", store: Store | None = None, executor=None,
+            simulator: str = batch.DEFAULT_SIMULATOR, image_size=WORKING_SIZE) -> list[Experiment]:
     """Footage of ``material`` in each setup, simulated at the preset's final discretisation.
 
     Returns one :class:`mpm.experiment.Experiment` per setup (``path`` None, named ``emulated_<W>x<H>``).

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from mpm import batch
-from mpm.params import Material, Setup
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
 from mpm.store import Store
 from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
@@ -187,7 +187,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, executor=None, sto
 
 
 def emulate_virheometry(truth: Material, first_setup: Setup, *, n_setups: int = 2, preset="demo", seed: int = 0,
-                        density: float = 1000.0, camera=None, store: Store | None = None, executor=None,
+                        density: float = DEFAULT_DENSITY_KG_M3, camera=None, store: Store | None = None, executor=None,
                         workers: int | None = None, generations: int | None = None,
                         simulator: str = batch.DEFAULT_SIMULATOR, progress=None,
                         propose: Callable | None = propose_next_setup) -> tuple[Estimate, list]:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import read_json
-from mpm.params import Material
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material
 
 
 @dataclass
@@ -100,7 +100,7 @@ def load_run(folder, *, store=None, executor=None) -> Run:
         info = result.get("experiments") or []
         experiments = []
         for i, s in enumerate(setups):
-            density = float(info[i]["density"]) if i < len(info) else 1000.0
+            density = float(info[i]["density"]) if i < len(info) else DEFAULT_DENSITY_KG_M3
             experiments += emulate(truth, [s], density=density, preset=preset, store=store, executor=executor,
                                    simulator=simulator)
     else:

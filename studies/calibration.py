@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
+from mpm.params import DEFAULT_DENSITY_KG_M3 as DENSITY
 from mpm.params import Material, Setup
 from similarity.posterior import NOISE_COUNT
 from similarity.space import denormalize, e_rel, normalize
@@ -46,7 +47,6 @@ LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliabi
 NOMINAL = 0.9  # the level the acceptance test names
 REGIONS = ("hpd", "ellipsoid", "intervals")
 PARAMETERS = ("eta", "n", "sigma_y")
-DENSITY = 1000.0  # kg/m^3
 
 
 # -- design --------------------------------------------------------------------------------------------

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
-from mpm.params import SETUP_RANGE_MM, Material, Setup
+from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_jobs
 from similarity.fd_hessian import hessian_from_stencil, spectrum, stencil
@@ -30,7 +30,8 @@ def _stencil_losses(material, setups, probes, preset, store, executor, simulator
 
 
 def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", store,
-                 executor=None, simulator: str = batch.DEFAULT_SIMULATOR, progress=None, density: float = 1000.0) -> dict:
+                 executor=None, simulator: str = batch.DEFAULT_SIMULATOR, progress=None,
+                 density: float = DEFAULT_DENSITY_KG_M3) -> dict:
     """Condition number of the FD Hessian of ``material``'s loss at each setup of a ``steps`` x ``steps``
     grid over the setup space; writes ``conditioning.json`` and ``conditioning.png`` into ``out``."""
     if steps < 2:

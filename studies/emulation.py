@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm import batch
-from mpm.params import SETUP_RANGE_MM, Material, Setup
+from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
 from similarity.space import denormalize, e_rel
 from studies.report import save_figure, write_json
@@ -78,7 +78,7 @@ class Case:
 
 
 def run_study(*, materials: int = 6, runs: int = 3, preset="demo", generations: int | None = None, seed: int = 0,
-              density: float = 1000.0, store=None, executor=None, progress=None,
+              density: float = DEFAULT_DENSITY_KG_M3, store=None, executor=None, progress=None,
               simulator: str = batch.DEFAULT_SIMULATOR) -> list[Case]:
     preset = E.get_preset(preset)
     g = int(generations or preset.generations)

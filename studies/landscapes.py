@@ -37,7 +37,7 @@ import numpy as np
 
 from mpm import batch
 from mpm.files import read_json
-from mpm.params import SETUP_RANGE_MM, Material, Setup
+from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_jobs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
@@ -66,7 +66,7 @@ class StudyConfig:
     fd_step: float = 0.05  # finite-difference step (normalised)
     preset: str = "demo"
     seed: int = 0
-    density: float = 1000.0
+    density: float = DEFAULT_DENSITY_KG_M3
     region: tuple | None = None  # SI box ((eta_lo, eta_hi), (n_lo, n_hi), (sy_lo, sy_hi)); None: the space
 
     def check(self) -> "StudyConfig":
