@@ -21,6 +21,7 @@ from mpm import kernels as kn
 from mpm.constitutive import NO_WARM_START
 from mpm.engine import Engine, engine
 from mpm import runtime
+from mpm.runtime import SimulationError
 from mpm import scene as sc
 from mpm.params import (DEFAULT_DEPTH_MM, FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule,
                         frame_times)
@@ -33,10 +34,6 @@ SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame int
 
 __all__ = ["simulate", "Simulation", "SimulationError", "DEFAULT_CELL_MM", "CFL", "PARTICLES_PER_CELL",
            "SUBSTEPS_PER_FRAME", "FLOW_RULES"]
-
-
-class SimulationError(RuntimeError):
-    """The simulation blew up (NaN, runaway speed, particles leaving the reachable region)."""
 
 
 @dataclass
@@ -156,7 +153,8 @@ def runner(dim: int, precision: str = "f32"):
         from mpm import native_engine
 
         tasks = runtime.threads()
-        return functools.partial(native_engine.NativeRun, threads=tasks), name, tasks
+        start = functools.partial(native_engine.NativeRun, threads=tasks, cfl=CFL, substeps=SUBSTEPS_PER_FRAME)
+        return start, name, tasks
     eng = engine(dim, precision)
     return functools.partial(_Run, eng), name, eng.tasks
 

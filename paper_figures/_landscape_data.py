@@ -29,10 +29,9 @@ def require(study: str, folder, figure: str) -> Path:
     return Path(folder)
 
 
-def _simulator() -> str:
-    from studies.commands.context import simulator
-
-    return simulator()
+def _simulator(context) -> dict:
+    """The studies' ``simulator`` argument: the command line's choice, or none (their default)."""
+    return {} if context.simulator is None else {"simulator": context.simulator}
 
 
 def quick_study(out_dir, context) -> Path:
@@ -43,7 +42,7 @@ def quick_study(out_dir, context) -> Path:
     if not (folder / LS.RESULT_FILE).is_file():
         config = LS.StudyConfig(materials=2, setups_per_material=1, grid=3, half_width=0.05, fd_step=0.05, preset="demo")
         LS.run(folder, config, store=context.resolved_store(out_dir), executor=context.executor,
-               simulator=_simulator(), plots=0)
+               plots=0, **_simulator(context))
     return folder
 
 
@@ -72,7 +71,8 @@ def conditioning(out_dir, quick: bool, context, figure: str) -> dict:
         if not (folder / CONDITIONING_FILE).is_file():
             material = Material(**data["pairs"][0]["material"])
             LS.conditioning(folder, material, steps=2, fd_step=data["config"]["fd_step"], preset="demo",
-                            store=context.resolved_store(out_dir), executor=context.executor, simulator=_simulator())
+                            store=context.resolved_store(out_dir), executor=context.executor,
+                            **_simulator(context))
     else:
         base = require("conditioning", context.landscapes, figure)
         folder = next((f for f in (base, base / "conditioning") if (f / CONDITIONING_FILE).is_file()), None)

@@ -24,6 +24,7 @@ class Context:
     store: object = None
     executor: object = None
     landscapes: object = None  # folder of the landscape study (Figs. 6, 7, 9)
+    simulator: str | None = None  # the studies' simulate function as the command line chose it (None: their default)
 
     def resolved_store(self, out_dir):
         from mpm.store import Store

@@ -21,13 +21,14 @@ from __future__ import annotations
 import numpy as np
 
 from mpm.params import material_array
-from poiseuille import hessian
+from poiseuille import hessian, loss
 from surrogate.theta import ThetaMap, load
 
 from .fd_hessian import canonical_sign
-from .space import EXTENT
+from .space import EXTENT, denormalize, normalize
 
 VARIANTS = ("scaled", "reference")
+P_SEARCH = 2500.0  # Pa/m: P of the plane-Poiseuille setups matched to dam-break landscapes (only P L matters, section 5.5)
 # SI -> CGS factors for (eta, n, sigma_y) and the conversions of P [Pa/m -> dyn/cm^3] and L [m -> cm]
 _CGS_PARAM = np.array([10.0, 1.0, 10.0])
 _CGS_P = 0.1
@@ -95,3 +96,11 @@ def perpendicularity(previous, q) -> np.ndarray:
     previous = np.atleast_2d(np.asarray(previous, dtype=float))
     dots = np.asarray(q, dtype=float) @ previous.T
     return np.sqrt(np.sum(dots * dots, axis=-1))
+
+
+def poiseuille_landscape(material, offsets, c_pa: float) -> np.ndarray:
+    """The plane-Poiseuille loss (eq. 26) around ``material`` at offsets (k, 3) in the normalised space, for the
+    wall stress C = P L with P = ``P_SEARCH``: the counterpart of a dam-break loss landscape (docs/landscapes.md)."""
+    m = material_array(material)
+    m_tilde = denormalize(normalize(m) + np.asarray(offsets, dtype=float))
+    return loss(m_tilde, m, P_SEARCH, c_pa / P_SEARCH)  # eq. 26

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from studies.commands.context import check_engine
+from studies.commands.context import check_engine, simulator
 
 
 def register(subparsers) -> None:
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     store = Store(args.store or out / "store")
     executor = batch.local_executor(args.workers) if simulating else None
-    context = Context(store=store, executor=executor, landscapes=args.landscapes)
+    context = Context(store=store, executor=executor, landscapes=args.landscapes, simulator=simulator())
     made = missing = 0
     t_all = time.perf_counter()
     try:
