@@ -83,8 +83,8 @@ def main(argv=None) -> int:
     from mpm.datasets import manifest, real_world_dir
     from mpm.loss import iou, video_loss
     from mpm.forward import Forward
+    from mpm.params import Material
     from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED
-    from similarity.space import Material
 
     request = Forward().request  # requests only: each run() below has its own executor
 

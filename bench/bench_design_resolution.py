@@ -21,10 +21,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mpm.forward import Forward  # noqa: E402
 from mpm.loss import video_loss  # noqa: E402
-from mpm.params import Setup  # noqa: E402
+from mpm.params import Material, Setup  # noqa: E402
 from similarity.emulation import emulate  # noqa: E402
 from similarity.presets import get_preset  # noqa: E402
-from similarity.space import Material  # noqa: E402
 from studies.design_study import records  # noqa: E402
 
 

@@ -18,9 +18,10 @@ import tempfile
 import time
 
 from mpm.forward import Forward
+from mpm.params import Material, Setup
 from mpm.store import Store
 from similarity import estimate as E
-from similarity.space import Material, Setup, e_rel
+from similarity.space import e_rel
 from studies.commands.demo import DEFAULT_FIRST_SETUP, DEFAULT_TRUTH
 
 

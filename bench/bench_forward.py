@@ -26,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import mpm  # noqa: E402
 from mpm import runtime, solver  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
+from mpm.params import DEFAULT_DENSITY_KG_M3, DEFAULT_DEPTH_MM  # noqa: E402
 
 REFERENCE_S = 570.0 + 8 * 24.0  # the reference implementation: 4500 steps in 570 s + 8 frames skinned at 19-32 s each
 PAPER = ("paper", 1.26, 2)  # the reference's discretisation: 1.26 mm cells, 2 particles per cell per axis
@@ -35,7 +36,8 @@ def load() -> str:
     return "load %.1f/%.1f" % os.getloadavg()[:2]
 
 
-def evaluate(material, setup, *, density=1000.0, cell_mm=None, camera=None, depth_mm=40.0, ppc=None):
+def evaluate(material, setup, *, density=DEFAULT_DENSITY_KG_M3, cell_mm=None, camera=None, depth_mm=DEFAULT_DEPTH_MM,
+             ppc=None):
     """One evaluation (simulation to 1/3 s + 8 silhouettes)."""
     return mpm.simulate(material, setup, density=density, cell_mm=cell_mm, camera=camera or Camera.default(),
                         depth_mm=depth_mm, ppc=ppc)

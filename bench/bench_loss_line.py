@@ -14,8 +14,9 @@ import argparse
 import numpy as np
 
 from mpm.forward import Forward
+from mpm.params import Material, Setup
 from similarity.estimate import Preset, emulate
-from similarity.space import Material, Setup, denormalize, e_rel, normalize
+from similarity.space import denormalize, e_rel, normalize
 
 
 def main(argv=None) -> int:

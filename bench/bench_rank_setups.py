@@ -16,10 +16,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from mpm.params import Material, Setup  # noqa: E402
 from poiseuille import hessian  # noqa: E402
 from similarity.design import rank_setups  # noqa: E402
 from similarity.normals import top_eigenvector  # noqa: E402
-from similarity.space import Material, Setup, candidate_setups  # noqa: E402
+from similarity.space import candidate_setups  # noqa: E402
 from surrogate.theta import load  # noqa: E402
 
 

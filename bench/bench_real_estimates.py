@@ -42,7 +42,7 @@ def _cpu_seconds() -> float:
 
 
 def _material(d: dict):
-    from similarity.space import Material
+    from mpm.params import Material
 
     return Material(float(d["eta"]), float(d["n"]), float(d["sigma_y"]))
 
@@ -67,7 +67,7 @@ def _finish_generations(result: dict):
 
 def parse_materials(parser: argparse.ArgumentParser, specs) -> list:
     """``--score`` materials given as ETA,N,SIGMA_Y (SI); a malformed or unphysical one ends with a usage error."""
-    from similarity.space import Material
+    from mpm.params import Material
 
     fields = [m.split(",") for m in specs]
     if any(len(f) != 3 for f in fields):
@@ -122,7 +122,7 @@ def score(out: Path, paper, curve, workers: int, others=()) -> dict:
 def main(argv=None) -> int:
     from mpm import experiment as xp
     from mpm.datasets import manifest, real_world_dir
-    from similarity.space import Material
+    from mpm.params import Material
     from studies.cli import main as virheo
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

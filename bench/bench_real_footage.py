@@ -20,8 +20,9 @@ import numpy as np
 from mpm import batch
 from mpm import experiment as xp
 from mpm.datasets import manifest, real_world_dir
+from mpm.params import Material
 from mpm.store import Store
-from similarity.space import Material, center
+from similarity.space import center
 
 
 def perturbations(m: Material) -> dict[str, Material]:

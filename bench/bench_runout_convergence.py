@@ -17,7 +17,7 @@ import numpy as np
 
 import mpm
 from mpm import solver
-from similarity.space import Material, Setup
+from mpm.params import Material, Setup
 
 DEFAULT_RUNS = ("3,1", "1.5,1", "1,1", "0.75,1", "0.5,1", "0.375,1", "0.25,1", "1,1,0.25", "1,1,0.125",
                 "3,2", "2.5,2", "2,2", "1.5,2", "1.25,2", "1,2", "0.75,2", "0.5,2", "1,2,0.25")

@@ -30,8 +30,8 @@ def main(argv=None) -> int:
     from mpm import experiment as xp
     from mpm.datasets import manifest, real_world_dir
     from mpm.forward import Forward
+    from mpm.params import Material
     from similarity.presets import VALIDATED
-    from similarity.space import Material
     from surrogate.rheometer import fit_herschel_bulkley
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -22,9 +22,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mpm.forward import Forward  # noqa: E402
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup  # noqa: E402
 from similarity.emulation import emulate, probe_losses  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
-from similarity.space import Material, Setup  # noqa: E402
 from studies.landscapes import grid_offsets, match  # noqa: E402
 from surrogate.theta import load as load_theta  # noqa: E402
 
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
             for cell in a.cells:
                 t0 = time.perf_counter()
                 preset = Preset("bench", generations=1, cell_mm=cell, ppc=a.ppc)
-                shots = emulate(m, setups, density=1000.0, preset=preset, forward=forward)
+                shots = emulate(m, setups, density=DEFAULT_DENSITY_KG_M3, preset=preset, forward=forward)
                 losses = probe_losses([(m, shot) for shot in shots], block, preset.search, forward)
                 cs = [match(m, row, GRID, HALF_WIDTH)["C_Pa"] for row in losses]
                 print(f"  MPM, {cell:g} mm cells, {a.ppc} per axis: {' / '.join(f'{c:5.1f}' for c in cs)}"

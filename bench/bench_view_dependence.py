@@ -23,10 +23,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mpm.camera import Camera  # noqa: E402
 from mpm.forward import Forward  # noqa: E402
+from mpm.params import Material, Setup  # noqa: E402
 from similarity.emulation import emulate, probe_losses  # noqa: E402
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
-from similarity.space import Material, Setup  # noqa: E402
 
 # inside the region the landscape studies sample; setups from both ends of the setup space
 PAIRS = (((3.45, 0.738, 6.26), (42.0, 38.0)), ((9.82, 0.705, 12.9), (64.0, 37.0)), ((10.0, 0.6, 10.0), (30.0, 20.0)),

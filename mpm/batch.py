@@ -29,6 +29,7 @@ import numpy as np
 
 from mpm import runtime
 from mpm.loss import video_loss
+from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE
 from mpm.store import SimRequest, SimResult, Store, digest
 
 DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
@@ -47,9 +48,9 @@ def camera_json(camera) -> str | None:
     return json.dumps(d, sort_keys=True, separators=(",", ":"), default=float)
 
 
-def request_for(material, setup, *, density: float, depth_mm: float = 40.0, camera=None, cell_mm=None,
+def request_for(material, setup, *, density: float, depth_mm: float = DEFAULT_DEPTH_MM, camera=None, cell_mm=None,
                 ppc: int | None = None, dim: int = 3, flow_rule: str = "paper", precision: str = "f32",
-                image_size=(960, 540), simulator: str = DEFAULT_SIMULATOR, slip_length_m=None,
+                image_size=WORKING_SIZE, simulator: str = DEFAULT_SIMULATOR, slip_length_m=None,
                 density_correction: bool = False, engine: str | None = None) -> SimRequest:
     """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``),
     for ``engine`` (None: the one that ``$VIRHEO_ARCH`` chooses; ValueError, one line, for an unknown or

@@ -23,7 +23,7 @@ import numpy as np
 from mpm import camera as _camera
 from mpm.camera import Camera
 from mpm.loss import load_reference
-from mpm.params import FPS, N_FRAMES, WORKING_SIZE
+from mpm.params import DEFAULT_DENSITY_KG_M3, DEFAULT_DEPTH_MM, FPS, N_FRAMES, WORKING_SIZE
 from mpm.ranges import check_density
 FRAME_TIMES_S = tuple(k / FPS for k in range(1, N_FRAMES + 1))  # frame k <-> config_k at t = k/24 s
 WALL_OVERLAP_CM = 0.15  # the reference cuboid reaches 0.15 cm into the back, floor and far walls
@@ -332,8 +332,8 @@ def settings_xml(width_mm: float, height_mm: float, depth_mm: float, density: fl
     return "\n".join(lines) + "\n"
 
 
-def write(path, frames, *, width_mm: float, height_mm: float, camera: Camera, density: float = 1000.0,
-          depth_mm: float = 40.0, initial_material: dict | None = None) -> Path:
+def write(path, frames, *, width_mm: float, height_mm: float, camera: Camera, density: float = DEFAULT_DENSITY_KG_M3,
+          depth_mm: float = DEFAULT_DEPTH_MM, initial_material: dict | None = None) -> Path:
     """Write an experiment folder that :func:`load` reads back: settings.xml, camera_params.xml and
     config_01..08.png at 1920x1080 (black material on white) from 8 bool masks at 960x540 or 1920x1080.
     """

@@ -20,7 +20,7 @@ import numpy as np
 
 from mpm import batch, runtime
 from mpm.experiment import Experiment
-from mpm.params import WORKING_SIZE, check_flow_rule
+from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE, check_flow_rule
 from mpm.store import SimRequest, SimResult, Store
 
 OnResult = Callable[[SimRequest, SimResult | None, bool], None]  # (request, result, served from the store)
@@ -84,7 +84,7 @@ class ForwardModel:
                               if k in record})
 
 
-def blank_experiment(setup, *, density: float, camera, depth_mm: float = 40.0, image_size=WORKING_SIZE,
+def blank_experiment(setup, *, density: float, camera, depth_mm: float = DEFAULT_DEPTH_MM, image_size=WORKING_SIZE,
                      name: str = "") -> Experiment:
     """An experiment without footage (no frames, ``path`` None) in ``setup`` (``.width_mm .height_mm``) seen by
     ``camera`` at ``image_size`` (width, height): what the forward model needs to simulate it."""

@@ -15,6 +15,7 @@ import sys
 import numpy as np
 
 from mpm.params import FPS, N_FRAMES, frame_times
+from mpm.runtime import SimulationError
 
 try:
     from mpm import _native
@@ -61,17 +62,11 @@ def isa() -> str:
     return best
 
 
-def _simulation_error(message: str):
-    from mpm.solver import SimulationError  # the one exception type of a blown-up simulation
-
-    return SimulationError(message)
-
-
 class NativeRun:
     """One simulation on the native engine; ``execute`` has the contract of ``mpm.solver._Run.execute``."""
 
     def __init__(self, scene, eta, n, sigma_y, yue: bool, slip_m: float = 0.0, density_correction: bool = False,
-                 body=None, threads: int = 1):
+                 body=None, threads: int = 1, *, cfl: float, substeps: int):
         if _native is None:
             raise ValueError(why_unavailable())
         self.scene = scene
@@ -80,6 +75,7 @@ class NativeRun:
         self.density_correction = bool(density_correction)
         self.body = (0.0, -scene.gravity, 0.0) if body is None else tuple(float(b) for b in body) + (0.0,) * 3
         self.threads = max(1, int(threads))
+        self.cfl, self.substeps = float(cfl), int(substeps)  # the time-step schedule, as mpm.solver sets it
         self.isa = isa()
 
     def _params(self, cfl: float):
@@ -95,8 +91,6 @@ class NativeRun:
         return fp
 
     def execute(self, progress=None):
-        from mpm import solver  # the schedule's constants live there (tests may change CFL)
-
         s = self.scene
         d = s.dim
         pos = np.ascontiguousarray(s.particles(), np.float64)
@@ -109,20 +103,20 @@ class NativeRun:
         lim[3:3 + d] = np.ceil(hi / s.cell_m) + 1
         times = np.ascontiguousarray(frame_times(), np.float64)
         ip = np.array([d, self.density_correction, self.slip_m > 0, self.threads,
-                       solver.SUBSTEPS_PER_FRAME, count, N_FRAMES], np.int32)
+                       self.substeps, count, N_FRAMES], np.int32)
         out_x = np.empty((N_FRAMES, count, d), np.float32)
         out_flags = np.empty((N_FRAMES, count), np.uint8)
         out_j = np.zeros(N_FRAMES)
         out_mass = np.zeros(N_FRAMES)
         callback = None if progress is None else (lambda k: progress(k, N_FRAMES))
         error, value, steps, dt_min, dt_max, vmax_seen, sorts, refills = _native.simulate(
-            pos, flags0, self._params(solver.CFL), ip,
+            pos, flags0, self._params(self.cfl), ip,
             np.ascontiguousarray(s.boxes(), np.float64), lim, times, out_x, out_flags, out_j, out_mass, callback,
             self.isa)
         if error == 3:
-            raise _simulation_error(f"simulation blew up: speed {value:.3g} m/s exceeds {s.speed_limit:.3g} m/s")
+            raise SimulationError(f"simulation blew up: speed {value:.3g} m/s exceeds {s.speed_limit:.3g} m/s")
         if error:
-            raise _simulation_error(f"simulation blew up: {ERRORS.get(error, 'unknown error')}")
+            raise SimulationError(f"simulation blew up: {ERRORS.get(error, 'unknown error')}")
         m_total = count * s.particle_mass
         frames3, front, visible = [], [], []
         for k in range(N_FRAMES):

@@ -1,5 +1,7 @@
 """Values that define a dam-break experiment: ``Material``, ``Setup`` and their validation, the paper's
-material-space and setup ranges, the flow-rule names, the frame times and the working image size.
+material-space and setup ranges, the flow-rule names, the frame times, the working image size and an
+experiment's default density and depth. It imports nothing of the project, so every floor may import it
+(docs/layers.md).
 
 Pure Python and numpy (no Taichi). SI units; setups in millimetres (``width_mm``).
 """
@@ -19,11 +21,19 @@ FLOW_RULES = ("paper", "yue2015")  # the paper's modified flow rule (eqs. 14-18)
 FPS = 24.0  # frame k of a video is at t = k / FPS
 N_FRAMES = 8
 WORKING_SIZE = (960, 540)  # (width, height) in pixels at which silhouettes are compared
+DEFAULT_DENSITY_KG_M3 = 1000.0  # a material's density where none is given (water-like)
+DEFAULT_DEPTH_MM = 40.0  # distance between the box's side walls where none is given (section 3.3)
 
 
 def frame_times() -> np.ndarray:
     """t_k = k / 24 s for k = 1..8."""
     return np.arange(1, N_FRAMES + 1) / FPS
+
+
+def flow_curve(eta, n, sigma_y, gamma_dot):
+    """Herschel-Bulkley flow curve sigma = sigma_y + eta * gamma_dot^n in Pa (eq. 1); scalars or arrays that
+    broadcast. Its terminal-stress form (eq. 7) in ``mpm.shear`` and ``Material.stress`` call it."""
+    return sigma_y + eta * np.asarray(gamma_dot, dtype=float) ** n  # eq. 1
 
 
 def check_material(eta, n, sigma_y) -> None:
@@ -40,6 +50,35 @@ def check_material(eta, n, sigma_y) -> None:
             rule = "a finite number " + ("> 0" if strict else ">= 0")
             raise ValueError(f"{name}={bad:g}{unit} is unphysical: it must be {rule} "
                              f"(material space {lo:g}..{hi:g}{unit})")
+
+
+def material_array(material) -> np.ndarray:
+    """(eta, n, sigma_y) as a float array (..., 3) from a ``Material``, any object with numeric (or array)
+    ``.eta``, ``.n`` and ``.sigma_y``, or an array-like (..., 3); a one-line ValueError otherwise."""
+    try:
+        if all(hasattr(material, k) for k in ("eta", "n", "sigma_y")):
+            parts = (np.asarray(getattr(material, k), dtype=float) for k in ("eta", "n", "sigma_y"))
+            return np.stack(np.broadcast_arrays(*parts), axis=-1)
+        m = np.asarray(material, dtype=float)
+    except (TypeError, ValueError):
+        raise ValueError("material needs numeric .eta (Pa s^n), .n and .sigma_y (Pa), or three numbers") from None
+    if m.shape[-1:] != (3,):
+        raise ValueError(f"material must be a Material or an array (..., 3) of eta, n, sigma_y; got shape {m.shape}")
+    return m
+
+
+def setup_arrays(setup) -> tuple:
+    """(width_mm, height_mm) from a ``Setup`` (or any object with ``.width_mm`` and ``.height_mm``), a
+    (width_mm, height_mm) pair of arrays (e.g. ``similarity.space.candidate_setups()``) or an array (..., 2)."""
+    if hasattr(setup, "width_mm") and hasattr(setup, "height_mm"):
+        return setup.width_mm, setup.height_mm
+    if isinstance(setup, tuple) and len(setup) == 2:
+        return setup
+    a = np.asarray(setup, dtype=float)
+    if a.shape[-1:] != (2,):
+        raise ValueError(f"setup must be a Setup, a (width_mm, height_mm) pair or an array (..., 2); "
+                         f"got shape {a.shape}")
+    return a[..., 0], a[..., 1]
 
 
 def check_flow_rule(name) -> str:
@@ -62,17 +101,17 @@ class Material:
 
     @classmethod
     def of(cls, material) -> "Material":
-        """A validated ``Material`` from any object with numeric ``.eta``, ``.n`` and ``.sigma_y``."""
+        """A validated ``Material`` from any object with numeric ``.eta``, ``.n`` and ``.sigma_y``, or from three
+        numbers (eta, n, sigma_y): :func:`material_array`."""
         if isinstance(material, cls):
             return material
-        try:
-            values = float(material.eta), float(material.n), float(material.sigma_y)
-        except (AttributeError, TypeError, ValueError):
-            raise ValueError("material needs numeric .eta (Pa s^n), .n and .sigma_y (Pa)") from None
-        return cls(*values)
+        m = material_array(material)
+        if m.shape != (3,):
+            raise ValueError(f"material needs one (eta, n, sigma_y), got shape {m.shape[:-1]} of them")
+        return cls.from_array(m)
 
     def as_array(self) -> np.ndarray:
-        return np.array([self.eta, self.n, self.sigma_y], dtype=float)
+        return material_array(self)
 
     @classmethod
     def from_array(cls, x) -> "Material":
@@ -111,8 +150,8 @@ class Material:
         return {"eta": self.eta, "n": self.n, "sigma_y": self.sigma_y}
 
     def stress(self, gamma_dot):
-        """Herschel-Bulkley flow curve sigma = sigma_y + eta * gamma_dot^n (eq. 1), Pa."""
-        return self.sigma_y + self.eta * np.asarray(gamma_dot, dtype=float) ** self.n
+        """This material's flow curve (eq. 1, :func:`flow_curve`), Pa."""
+        return flow_curve(self.eta, self.n, self.sigma_y, gamma_dot)
 
 
 @dataclass(frozen=True)

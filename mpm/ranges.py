@@ -16,7 +16,11 @@ SIGMA_Y_LIMIT = 4000.0
 
 
 def check_density(density: float, what: str = "density") -> float:
-    """``density`` in kg/m^3, or ValueError with the accepted range."""
+    """``density`` as a float in kg/m^3 if it is a finite number within ``DENSITY_RANGE_KG_M3`` (300..5000
+    kg/m^3), else a one-line ValueError naming ``what`` and the accepted range.
+
+    The one rule for a density: the dam-break scene (every simulation), ``settings.xml`` of an experiment folder
+    and the ``--density`` options all call it (docs/user-guide.md, "What happens when...")."""
     lo, hi = DENSITY_RANGE_KG_M3
     try:
         value = float(density)

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mpm.params import FPS, N_FRAMES, Setup
+from mpm.params import DEFAULT_DEPTH_MM, FPS, N_FRAMES, Setup
+from mpm.ranges import check_density
 
 KAPPA_PA = 1.0e4  # bulk modulus kappa (section 4.2)
 MU_PA = 1.0e3  # shear modulus mu
@@ -47,13 +48,11 @@ class DamBreak:
     gravity: float = GRAVITY
 
     @classmethod
-    def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = 40.0, dim: int = 3,
+    def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = DEFAULT_DEPTH_MM, dim: int = 3,
               ppc: int = REFERENCE_PARTICLES_PER_CELL) -> "DamBreak":
         setup = Setup.of(setup).check_in_space()
         w, h = setup.width_mm * 1e-3, setup.height_mm * 1e-3
-        density = float(density)
-        if not (math.isfinite(density) and density > 0):
-            raise ValueError(f"density must be positive (kg/m^3), got {density!r}")
+        density = check_density(density)
         depth_mm = float(depth_mm)
         if not (math.isfinite(depth_mm) and 5.0 <= depth_mm <= 200.0):
             raise ValueError(f"depth must be within 5-200 mm, got {depth_mm!r}")

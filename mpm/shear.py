@@ -7,20 +7,21 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpm.constitutive import SQRT2, cauchy_stress, get_flow_rule, return_mapping_np, shear_stress, solve_excess
-from mpm.params import check_material
+from mpm.params import check_material, flow_curve
+from mpm.scene import KAPPA_PA, MU_PA
 
 
-def transition_time(eta, n, strain_rate, mu: float = 1e3):
+def transition_time(eta, n, strain_rate, mu: float = MU_PA):
     """t_inf = eta / (mu * strain_rate^(1-n)) (eq. 8)."""
     return eta / (mu * np.asarray(strain_rate, dtype=float) ** (1.0 - np.asarray(n)))  # eq. 8
 
 
 def terminal_stress(eta, n, sigma_y, strain_rate):
-    """sigma_s,inf = sigma_y + eta strain_rate^n (eq. 7)."""
-    return sigma_y + eta * np.asarray(strain_rate, dtype=float) ** np.asarray(n)  # eq. 7
+    """sigma_s,inf = sigma_y + eta strain_rate^n (eq. 7): the flow curve (eq. 1) at the imposed rate."""
+    return flow_curve(eta, np.asarray(n), sigma_y, strain_rate)  # eq. 7
 
 
-def integrate_1d(eta, n, sigma_y, strain_rate: float = 10.0, *, mu: float = 1e3, t_end=None, dt=None):
+def integrate_1d(eta, n, sigma_y, strain_rate: float = 10.0, *, mu: float = MU_PA, t_end=None, dt=None):
     """Stress of the 1D model (eqs. 4-6) under a constant strain rate, from rest.
 
     d sigma/dt = mu (strain_rate - eps_p_dot), eps_p_dot = (max(0, sigma - sigma_y)/eta)^(1/n), integrated
@@ -55,7 +56,7 @@ class ShearHistory:
 
 
 def simple_shear(eta, n, sigma_y, gamma_dot: float = 10.0, *, t_end: float = 0.1, dt: float = 1e-4,
-                 mu: float = 1e3, kappa: float = 1e4, flow_rule: str = "paper") -> ShearHistory:
+                 mu: float = MU_PA, kappa: float = KAPPA_PA, flow_rule: str = "paper") -> ShearHistory:
     """3D simple shear L = gamma_dot L_I (section 4.3) from rest, vectorised over materials.
 
     Each step: elastic prediction b* = F b F^T with F = I + dt L (eq. 52 is its first-order form; this is

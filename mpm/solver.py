@@ -21,8 +21,10 @@ from mpm import kernels as kn
 from mpm.constitutive import NO_WARM_START
 from mpm.engine import Engine, engine
 from mpm import runtime
+from mpm.runtime import SimulationError
 from mpm import scene as sc
-from mpm.params import FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule, frame_times
+from mpm.params import (DEFAULT_DEPTH_MM, FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule,
+                        frame_times)
 
 DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/performance.md
 CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6-0.65 still stable, 0.8 blows up (docs/method/forward-model.md)
@@ -32,10 +34,6 @@ SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame int
 
 __all__ = ["simulate", "Simulation", "SimulationError", "DEFAULT_CELL_MM", "CFL", "PARTICLES_PER_CELL",
            "SUBSTEPS_PER_FRAME", "FLOW_RULES"]
-
-
-class SimulationError(RuntimeError):
-    """The simulation blew up (NaN, runaway speed, particles leaving the reachable region)."""
 
 
 @dataclass
@@ -99,7 +97,7 @@ def _compile_notice(eng):
 
 
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
-             depth_mm=40.0, image_size=WORKING_SIZE, precision="f32", ppc=None, slip_length_m=None,
+             depth_mm=DEFAULT_DEPTH_MM, image_size=WORKING_SIZE, precision="f32", ppc=None, slip_length_m=None,
              density_correction=False, progress=None) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
@@ -155,7 +153,8 @@ def runner(dim: int, precision: str = "f32"):
         from mpm import native_engine
 
         tasks = runtime.threads()
-        return functools.partial(native_engine.NativeRun, threads=tasks), name, tasks
+        start = functools.partial(native_engine.NativeRun, threads=tasks, cfl=CFL, substeps=SUBSTEPS_PER_FRAME)
+        return start, name, tasks
     eng = engine(dim, precision)
     return functools.partial(_Run, eng), name, eng.tasks
 

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import atomic_write, canonical_json, digest, json_default, pack, unpack  # noqa: F401 (re-exported)
+from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE
 from mpm.store_index import INSERT_SIM, open_index
 
 
@@ -56,7 +57,7 @@ class SimRequest:
     width_mm: float
     height_mm: float
     density: float
-    depth_mm: float = 40.0
+    depth_mm: float = DEFAULT_DEPTH_MM
     camera: str | None = None
     cell_mm: float | None = None
     ppc: int | None = None
@@ -65,7 +66,7 @@ class SimRequest:
     dim: int = 3
     flow_rule: str = "paper"
     precision: str = "f32"
-    image_size: tuple = (960, 540)
+    image_size: tuple = WORKING_SIZE
     simulator: str = "mpm.batch:run_mpm"
     code_version: str = ""
     engine: str = ""  # the engine that simulates it (mpm.runtime.ENGINES); "" in requests stored before engines
@@ -81,7 +82,7 @@ class SimRequest:
     @classmethod
     def from_dict(cls, d: dict) -> "SimRequest":
         d = dict(d)
-        d["image_size"] = tuple(d.get("image_size", (960, 540)))
+        d["image_size"] = tuple(d.get("image_size", WORKING_SIZE))
         cam = d.get("camera")
         d["camera"] = canonical_json(cam) if cam is not None else None
         return cls(**d)

@@ -29,12 +29,6 @@ def require(study: str, folder, figure: str) -> Path:
     return Path(folder)
 
 
-def _simulator() -> str:
-    from studies.commands.context import simulator
-
-    return simulator()
-
-
 def quick_study(out_dir, context) -> Path:
     """Run (or reuse) the tiny quick-mode landscape study in ``out_dir/landscape-study``."""
     from studies import landscapes as LS
@@ -42,7 +36,7 @@ def quick_study(out_dir, context) -> Path:
     folder = Path(out_dir) / QUICK_FOLDER
     if not (folder / LS.RESULT_FILE).is_file():
         config = LS.StudyConfig(materials=2, setups_per_material=1, grid=3, half_width=0.05, fd_step=0.05, preset="demo")
-        LS.run(folder, config, forward=context.resolved_forward(out_dir).with_simulator(_simulator()), plots=0)
+        LS.run(folder, config, forward=context.resolved_forward(out_dir).with_simulator(context.simulator), plots=0)
     return folder
 
 
@@ -63,7 +57,7 @@ def landscapes(out_dir, quick: bool, context, figure: str) -> dict:
 def conditioning(out_dir, quick: bool, context, figure: str) -> dict:
     """The conditioning study's ``conditioning.json`` (quick: computed for the quick study's first material)."""
     if context.landscapes is None and quick and importlib.util.find_spec("studies.landscapes") is not None:
-        from similarity.space import Material
+        from mpm.params import Material
         from studies import landscapes as LS
 
         data = landscapes(out_dir, quick, context, figure)
@@ -71,7 +65,7 @@ def conditioning(out_dir, quick: bool, context, figure: str) -> dict:
         if not (folder / CONDITIONING_FILE).is_file():
             material = Material(**data["pairs"][0]["material"])
             LS.conditioning(folder, material, steps=2, fd_step=data["config"]["fd_step"], preset="demo",
-                            forward=context.resolved_forward(out_dir).with_simulator(_simulator()))
+                            forward=context.resolved_forward(out_dir).with_simulator(context.simulator))
     else:
         base = require("conditioning", context.landscapes, figure)
         folder = next((f for f in (base, base / "conditioning") if (f / CONDITIONING_FILE).is_file()), None)

@@ -71,7 +71,7 @@ def simulator_for(kappa_factor: int, mu_factor: int) -> str | None:
 
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
     from mpm.camera import Camera
-    from similarity.space import Material, Setup
+    from mpm.params import Material, Setup
 
     context = context or Context()
     forward = context.resolved_forward(out_dir)

@@ -41,8 +41,8 @@ def trace(ax, q, a: int, b: int, hw: float, color: str, label: str) -> None:
 
 
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
-    from similarity.space import Material
-    from studies import landscapes as LS
+    from mpm.params import Material
+    from similarity.normals import poiseuille_landscape
 
     context = context or Context()
     data, hw, pairs = matched_pairs(out_dir, quick, context, "fig06", MAX_PAIRS)
@@ -68,7 +68,7 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
                    norm=PowerNorm(0.25, vmin=0.0))
         pts = np.zeros((fine, fine, 3))
         pts[..., a], pts[..., b] = np.meshgrid(axis, axis, indexing="ij")
-        pp = LS.poiseuille_landscape(m, pts.reshape(-1, 3), rec["match"]["C_Pa"]).reshape(fine, fine)
+        pp = poiseuille_landscape(m, pts.reshape(-1, 3), rec["match"]["C_Pa"]).reshape(fine, fine)
         bottom = axes[1, col]
         bottom.imshow(pp.T, origin="lower", extent=(-hw, hw, -hw, hw), cmap="viridis", norm=PowerNorm(0.25, vmin=0.0))
         for ax in (top, bottom):

@@ -42,7 +42,7 @@ def _pairs():
     """[(material, [experiments setup 1, setup 2], paper Material)] for every shared material, manifest order."""
     from mpm import experiment as xp
     from mpm.datasets import data_dir, manifest, real_world_dir
-    from similarity.space import Material
+    from mpm.params import Material
 
     if data_dir() is None:
         raise MissingData("shared footage not found: set VIRHEO_DATA to the shared data folder")
@@ -105,7 +105,7 @@ def table_markdown(rows: list[dict]) -> str:
 
 
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
-    from similarity.space import Material
+    from mpm.params import Material
 
     context = context or Context()
     forward = context.resolved_forward(out_dir)

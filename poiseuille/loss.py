@@ -10,22 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from mpm.params import material_array
+
 from .flow import velocity
 
 _NODES = 48
 _GL_T, _GL_W = np.polynomial.legendre.leggauss(_NODES)
 _GL_T = 0.5 * (_GL_T + 1.0)  # nodes on [0, 1]
 _GL_W = 0.5 * _GL_W
-
-
-def _as_params(m) -> np.ndarray:
-    """(eta, n, sigma_y) as an array (..., 3): accepts arrays or objects with eta, n, sigma_y."""
-    if all(hasattr(m, k) for k in ("eta", "n", "sigma_y")):
-        return np.array([m.eta, m.n, m.sigma_y], dtype=float)
-    m = np.asarray(m, dtype=float)
-    if m.shape[-1:] != (3,):
-        raise ValueError(f"material parameters must have a last axis of length 3 (eta, n, sigma_y), got shape {m.shape}")
-    return m
 
 
 def _piece(lo, hi, m1, m2, P, L):
@@ -44,8 +36,8 @@ def loss(m_tilde, m, P, L):
     ``m_tilde`` and ``m`` are (eta, n, sigma_y) as arrays (..., 3) or Material-like objects;
     everything broadcasts. Near M~ = M it equals 0.5 dM^T H dM with H from :func:`hessian`.
     """
-    a1 = np.moveaxis(_as_params(m_tilde), -1, 0)
-    a2 = np.moveaxis(_as_params(m), -1, 0)
+    a1 = np.moveaxis(material_array(m_tilde), -1, 0)
+    a2 = np.moveaxis(material_array(m), -1, 0)
     e1, n1, s1, e2, n2, s2, P, L = np.broadcast_arrays(*a1, *a2, np.asarray(P, float), np.asarray(L, float))
     l1 = np.clip(s1 / P, 0.0, L)
     l2 = np.clip(s2 / P, 0.0, L)

@@ -16,8 +16,9 @@ import numpy as np
 
 from mpm.files import digest
 from mpm.forward import Forward, ForwardModel
+from mpm.params import Material
 from similarity.presets import setup_of
-from similarity.space import Material, denormalize, normalize
+from similarity.space import denormalize, normalize
 
 POPSIZE = 7  # 4 + floor(3 ln 3) for 3 parameters
 RESAMPLE = 3  # rounds of redrawing NaN candidates (failed simulations) within one generation

@@ -28,13 +28,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mpm.params import SETUP_RANGE_MM, Material, Setup
 from surrogate.theta import ThetaMap, load
 
 from poiseuille import hessian
 
 from .belief import PRIOR_PRECISION
 from .normals import loss_normal, loss_normals, perpendicularity
-from .space import EXTENT, SETUP_RANGE_MM, Material, Setup, candidate_setups
+from .space import EXTENT, candidate_setups
 
 CRITERIA = ("perpendicularity", "eig")
 DEFAULT_INFORMATION_SCALE = 1.0e4  # c without a posterior: a setup pins its normal to ~1 % of the box
@@ -73,8 +74,7 @@ class Ranking:
 
 
 def _material(material) -> Material:
-    m = material if isinstance(material, Material) else Material(*(float(v) for v in material))
-    return m.check_in_space()
+    return Material.of(material).check_in_space()
 
 
 def _setups(done) -> tuple:

@@ -5,7 +5,8 @@ log-posterior, the Laplace approximation) defines the credible ellipsoid
 {x : (x - m)^T C^-1 (x - m) <= chi2_3(level)}.  Its axes are C's eigenvectors and its semi-axis
 lengths sqrt(lambda_i chi2_3(level)).  The *thin* axis (smallest length) is the direction the footage
 pins down; section 5 predicts it to be the loss normal of the plane-Poiseuille Hessian
-(similarity/normals.py), which :func:`alignment` checks.
+(similarity/normals.py), which :func:`alignment` checks. The Laplace approximation's Hessian is the one
+finite-difference Hessian, :func:`similarity.fd_hessian.fd_hessian`.
 """
 from __future__ import annotations
 
@@ -13,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2
+
+from .fd_hessian import abs_cos, canonical_sign
 
 
 @dataclass(frozen=True)
@@ -33,10 +36,6 @@ class Ellipsoid:
                 "level": self.level}
 
 
-def _sign(v: np.ndarray) -> np.ndarray:
-    return v * np.sign(v[np.argmax(np.abs(v))])
-
-
 def ellipsoid(center, cov, level: float = 0.9) -> Ellipsoid:
     """Credible ellipsoid of a Gaussian with covariance ``cov`` (normalised space) at ``level``."""
     cov = np.asarray(cov, float)
@@ -45,31 +44,10 @@ def ellipsoid(center, cov, level: float = 0.9) -> Ellipsoid:
     lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
     if lam[0] <= 0:
         raise ValueError("the covariance is not positive definite")
-    axes = np.column_stack([_sign(vec[:, i]) for i in range(3)])
+    axes = canonical_sign(vec.T).T
     return Ellipsoid(np.asarray(center, float), axes, np.sqrt(lam * chi2.ppf(level, 3)), float(level))
-
-
-def finite_difference_hessian(f, x, step: float = 1e-3) -> np.ndarray:
-    """Central finite-difference Hessian of a scalar function ``f`` of (n, 3) -> (n,) at ``x`` (3,)."""
-    x = np.asarray(x, float)
-    d = x.size
-    e = np.eye(d) * step
-    pts = [x]
-    for i in range(d):
-        for j in range(d):
-            pts += [x + e[i] + e[j], x + e[i] - e[j], x - e[i] + e[j], x - e[i] - e[j]]
-    v = np.asarray(f(np.array(pts)), float)
-    h = np.empty((d, d))
-    k = 1
-    for i in range(d):
-        for j in range(d):
-            pp, pm, mp, mm = v[k:k + 4]
-            h[i, j] = (pp - pm - mp + mm) / (4 * step * step)
-            k += 4
-    return 0.5 * (h + h.T)
 
 
 def alignment(thin_direction, normal) -> float:
     """|cos| of the angle between the thin axis and a loss normal (1: the normal predicts it exactly)."""
-    a, b = np.asarray(thin_direction, float), np.asarray(normal, float)
-    return float(abs(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b)))
+    return float(abs_cos(thin_direction, normal))

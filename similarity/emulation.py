@@ -7,9 +7,9 @@ import numpy as np
 
 from mpm.experiment import Experiment
 from mpm.forward import Forward, ForwardModel, blank_experiment
-from mpm.params import WORKING_SIZE
+from mpm.params import DEFAULT_DENSITY_KG_M3, DEFAULT_DEPTH_MM, WORKING_SIZE, Material, Setup
 from similarity.presets import get_preset
-from similarity.space import Material, Setup, denormalize, normalize
+from similarity.space import denormalize, normalize
 
 
 def _default_camera():
@@ -18,8 +18,8 @@ def _default_camera():
     return Camera.default()
 
 
-def emulate(material: Material, setups: Sequence[Setup], *, density: float = 1000.0, camera=None,
-            depth_mm: float = 40.0, preset="demo", forward: Forward | None = None,
+def emulate(material: Material, setups: Sequence[Setup], *, density: float = DEFAULT_DENSITY_KG_M3, camera=None,
+            depth_mm: float = DEFAULT_DEPTH_MM, preset="demo", forward: Forward | None = None,
             image_size=WORKING_SIZE) -> list[Experiment]:
     """Footage of ``material`` in each setup, simulated at the preset's final discretisation.
 

@@ -15,10 +15,11 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from mpm.forward import Forward, ForwardModel
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
 from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
 from similarity.presets import PRESETS, Preset, get_preset, setup_of  # noqa: F401
-from similarity.space import LOWER, UPPER, Material, Setup, center, denormalize, e_rel, normalize
+from similarity.space import LOWER, UPPER, center, denormalize, e_rel, normalize
 
 BOUND_MARGIN = 0.02  # an estimate this close to a bound (fraction of the parameter's range) gets a warning
 
@@ -172,7 +173,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
 
 
 def emulate_virheometry(truth: Material, first_setup: Setup, *, n_setups: int = 2, preset="demo", seed: int = 0,
-                        density: float = 1000.0, camera=None, forward: Forward | None = None,
+                        density: float = DEFAULT_DENSITY_KG_M3, camera=None, forward: Forward | None = None,
                         generations: int | None = None, progress=None,
                         propose: Callable | None = propose_next_setup) -> tuple[Estimate, list]:
     """Sequential ViRheometry on emulated footage: film ``first_setup``, fit, film the proposed setup, fit again.

@@ -16,7 +16,10 @@ not depend on how the loss grows with distance, only on the shape of its valley;
 large enough that each probe moves the silhouettes by several pixels (docs/landscapes.md studies it).
 
 Everything here works in the normalised material space, so normals are comparable to
-:func:`similarity.normals.normals_at`.
+:func:`similarity.normals.normals_at`. This is the one finite-difference Hessian of the project: the Laplace
+approximation of the posterior (similarity/posterior.py) takes it too. The eigenvector sign rule
+(:func:`canonical_sign`) and the sign-blind comparison of normals (:func:`abs_cos`, :func:`angle_deg`) live
+here as well.
 """
 from __future__ import annotations
 
@@ -88,14 +91,24 @@ def spectrum(h) -> Spectrum:
     if h.shape != (3, 3) or not np.all(np.isfinite(h)):
         raise ValueError("the Hessian must be a finite 3 x 3 matrix (a simulation of its stencil failed?)")
     vals, vecs = np.linalg.eigh(0.5 * (h + h.T))
-    q = vecs[:, -1]
-    q = q * np.sign(q[np.argmax(np.abs(q))])
-    return Spectrum(vals, vecs, q)
+    return Spectrum(vals, vecs, canonical_sign(vecs[:, -1]))
+
+
+def canonical_sign(v) -> np.ndarray:
+    """Vectors (..., k) whose sign is arbitrary (eigenvectors), each flipped so that its largest-magnitude
+    component is positive; NaN stays NaN."""
+    v = np.asarray(v, dtype=float)
+    big = np.take_along_axis(v, np.argmax(np.abs(v), axis=-1)[..., None], axis=-1)
+    return v * np.sign(big)
+
+
+def abs_cos(a, b) -> np.ndarray:
+    """|cos| of the angle between directions (..., k), sign-blind (a normal and its negative agree): 0..1."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    return np.abs(np.sum(a * b, axis=-1)) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
 
 
 def angle_deg(a, b) -> np.ndarray:
     """Angle in degrees between loss normals (..., 3), sign-blind (a normal and its negative agree): 0..90."""
-    a = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
-    c = np.abs(np.sum(a * b, axis=-1)) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
-    return np.degrees(np.arccos(np.clip(c, 0.0, 1.0)))
+    return np.degrees(np.arccos(np.clip(abs_cos(a, b), 0.0, 1.0)))

@@ -20,22 +20,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from poiseuille import hessian
+from mpm.params import material_array
+from poiseuille import hessian, loss
 from surrogate.theta import ThetaMap, load
 
-from .space import EXTENT, Material
+from .fd_hessian import canonical_sign
+from .space import EXTENT, denormalize, normalize
 
 VARIANTS = ("scaled", "reference")
+P_SEARCH = 2500.0  # Pa/m: P of the plane-Poiseuille setups matched to dam-break landscapes (only P L matters, section 5.5)
 # SI -> CGS factors for (eta, n, sigma_y) and the conversions of P [Pa/m -> dyn/cm^3] and L [m -> cm]
 _CGS_PARAM = np.array([10.0, 1.0, 10.0])
 _CGS_P = 0.1
 _CGS_L = 100.0
-
-
-def _params(material) -> np.ndarray:
-    if isinstance(material, Material) or all(hasattr(material, k) for k in ("eta", "n", "sigma_y")):
-        return np.array([material.eta, material.n, material.sigma_y], dtype=float)
-    return np.asarray(material, dtype=float)
 
 
 def top_eigenvector(h) -> np.ndarray:
@@ -49,10 +46,7 @@ def top_eigenvector(h) -> np.ndarray:
     ok = tr > 0
     safe = np.where(ok[..., None, None], h / np.where(ok, tr, 1.0)[..., None, None], np.eye(3))
     _, vecs = np.linalg.eigh(safe)
-    q = vecs[..., :, -1]
-    big = np.take_along_axis(q, np.argmax(np.abs(q), axis=-1)[..., None], axis=-1)
-    q = q * np.sign(big)
-    return np.where(ok[..., None], q, np.nan)
+    return np.where(ok[..., None], canonical_sign(vecs[..., :, -1]), np.nan)
 
 
 def normals_at(params, P, L, variant: str = "scaled", units: str = "cgs") -> np.ndarray:
@@ -79,7 +73,7 @@ def normals_at(params, P, L, variant: str = "scaled", units: str = "cgs") -> np.
 def loss_normals(material, width_mm, height_mm, theta="reference", variant: str = "scaled", units: str = "cgs"):
     """Algorithm 2 for arrays of setups: returns (normals (k, 3), valid (k,)), valid meaning P L > sigma_y."""
     theta = theta if isinstance(theta, ThetaMap) else load(theta)
-    m = _params(material)
+    m = material_array(material)
     P, L = theta.pl(m[..., 0], m[..., 1], m[..., 2], width_mm, height_mm)
     valid = P * L > m[..., 2]
     q = normals_at(m, P, L, variant, units)
@@ -102,3 +96,11 @@ def perpendicularity(previous, q) -> np.ndarray:
     previous = np.atleast_2d(np.asarray(previous, dtype=float))
     dots = np.asarray(q, dtype=float) @ previous.T
     return np.sqrt(np.sum(dots * dots, axis=-1))
+
+
+def poiseuille_landscape(material, offsets, c_pa: float) -> np.ndarray:
+    """The plane-Poiseuille loss (eq. 26) around ``material`` at offsets (k, 3) in the normalised space, for the
+    wall stress C = P L with P = ``P_SEARCH``: the counterpart of a dam-break loss landscape (docs/landscapes.md)."""
+    m = material_array(material)
+    m_tilde = denormalize(normalize(m) + np.asarray(offsets, dtype=float))
+    return loss(m_tilde, m, P_SEARCH, c_pa / P_SEARCH)  # eq. 26

@@ -21,9 +21,10 @@ from typing import Callable
 import numpy as np
 
 from mpm.files import write_json
+from mpm.params import Material
 from similarity.mcmc import QUANTILES, Posterior, check_backend, sample
 from similarity.run_folder import Run, load_run, read_posterior, read_result  # noqa: F401 (re-exported)
-from similarity.space import Material, denormalize, normalize
+from similarity.space import denormalize, normalize
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
 MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
@@ -108,7 +109,8 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     ``forward``: the store and executor that simulate (default: the run's store, in this process)."""
     from mpm.files import digest
     from similarity.design import expected_information_gain, rank_setups
-    from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
+    from similarity.ellipsoid import alignment, ellipsoid
+    from similarity.fd_hessian import fd_hessian
     from similarity.estimate import simulated_frames
     from similarity.likelihood import noise_scale
     from similarity.normals import loss_normal
@@ -185,7 +187,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     summary["ellipsoid_posterior"] = ell.to_dict()
     try:
         step = max(1e-5, 0.5 * float(np.sqrt(np.min(np.diag(post.cov)))))
-        h = finite_difference_hessian(lambda x: -noise.log_likelihood(emu.predict(x)), post.mean, step=step)
+        h = fd_hessian(lambda x: -noise.log_likelihood(emu.predict(x)), post.mean, step)
         summary["ellipsoid_laplace"] = ellipsoid(post.mean, np.linalg.inv(h), 0.9).to_dict()
     except (ValueError, np.linalg.LinAlgError):
         summary["ellipsoid_laplace"] = None

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 from mpm.forward import ForwardModel
-from similarity.space import Setup
+from mpm.params import Setup
 
 PAPER_SIGMA0 = 0.1  # stage-1 step size in [0, 1]^3: the paper's Sigma = 1 in a [0, 10]^3 box
 

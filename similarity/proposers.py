@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity.belief import Belief, stage_belief
-from similarity.space import SETUP_RANGE_MM, Material, Setup
 
 CRITERIA = ("perpendicularity", "eig", "random")
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from mpm.files import read_json
 from mpm.forward import Forward, ForwardModel
-from similarity.space import Material
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material
 
 
 @dataclass
@@ -78,7 +78,7 @@ def load_run(folder, *, forward: Forward | None = None) -> Run:
     ``forward``: the store and executor to simulate with (default: ``folder/store``, in this process); the run
     simulates with the simulating function its result.json names."""
     from similarity.estimate import emulate, get_preset
-    from similarity.space import Setup
+    from mpm.params import Setup
 
     folder = Path(folder)
     result, estimate = read_result(folder)
@@ -100,7 +100,7 @@ def load_run(folder, *, forward: Forward | None = None) -> Run:
         info = result.get("experiments") or []
         experiments = []
         for i, s in enumerate(setups):
-            density = float(info[i]["density"]) if i < len(info) else 1000.0
+            density = float(info[i]["density"]) if i < len(info) else DEFAULT_DENSITY_KG_M3
             experiments += emulate(truth, [s], density=density, preset=preset, forward=forward)
     else:
         raise ValueError(f"{path}: names neither experiment folders nor a ground truth; cannot rebuild the footage")

@@ -35,8 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
+from mpm.params import DEFAULT_DENSITY_KG_M3 as DENSITY
+from mpm.params import Material, Setup
 from similarity.posterior import NOISE_COUNT
-from similarity.space import Material, Setup, denormalize, e_rel, normalize
+from similarity.space import denormalize, e_rel, normalize
 from studies.report import finished_case, finished_cases, save_figure, write_json, write_study
 
 SETTINGS = ("same", "finer")
@@ -44,7 +46,6 @@ LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliabi
 NOMINAL = 0.9  # the level the acceptance test names
 REGIONS = ("hpd", "ellipsoid", "intervals")
 PARAMETERS = ("eta", "n", "sigma_y")
-DENSITY = 1000.0  # kg/m^3
 
 
 # -- design --------------------------------------------------------------------------------------------

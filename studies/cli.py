@@ -17,6 +17,8 @@ import sys
 import warnings
 import zipfile
 
+from studies.commands.context import report_data_losses
+
 # modules under studies.commands, in the order of ``virheo --help``; each defines register(subparsers)
 COMMANDS = ("demo", "design", "simulate", "check", "estimate", "study", "rheometer", "report", "theta", "figures")
 
@@ -117,6 +119,7 @@ def main(argv=None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.showwarning = show_warning
+            report_data_losses()
             status = args.func(args)
     except KeyboardInterrupt:
         sys.stderr.write(f"{prefix}: interrupted (finished simulations are kept in the store; "

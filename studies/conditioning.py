@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_losses
 from similarity.fd_hessian import hessian_from_stencil, spectrum, stencil
-from similarity.space import SETUP_RANGE_MM, Material, Setup, normalize
+from similarity.space import normalize
 from studies.report import save_figure, write_json
 
 
@@ -26,7 +27,7 @@ def _stencil_losses(material, setups, probes, preset, forward, density, tick) ->
 
 
 def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.05, preset="demo", forward,
-                 progress=None, density: float = 1000.0) -> dict:
+                 progress=None, density: float = DEFAULT_DENSITY_KG_M3) -> dict:
     """Condition number of the FD Hessian of ``material``'s loss at each setup of a ``steps`` x ``steps``
     grid over the setup space; writes ``conditioning.json`` and ``conditioning.png`` into ``out``."""
     if steps < 2:

@@ -28,12 +28,12 @@ from pathlib import Path
 
 import numpy as np
 
+from mpm.params import DEFAULT_DENSITY_KG_M3 as DENSITY
 from similarity.proposers import CRITERIA, Eig, Perpendicularity, Random
 from similarity.space import e_rel
 from studies.emulation import GOOD
 from studies.report import finished_case, finished_cases, save_figure, write_json, write_study
 
-DENSITY = 1000.0  # kg/m^3
 PAIRS = (("eig", "perpendicularity"), ("perpendicularity", "random"), ("eig", "random"))
 COLOURS = {"perpendicularity": "tab:blue", "eig": "tab:red", "random": "0.45"}
 

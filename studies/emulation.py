@@ -15,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
-from similarity.space import Material, Setup, SETUP_RANGE_MM, denormalize, e_rel
+from similarity.space import denormalize, e_rel
 from studies.report import save_figure, write_json
 
 GOOD = 0.1  # E_rel <= 0.1 counts as good enough (section 7.1)
@@ -76,7 +77,7 @@ class Case:
 
 
 def run_study(*, materials: int = 6, runs: int = 3, preset="demo", generations: int | None = None, seed: int = 0,
-              density: float = 1000.0, forward, progress=None) -> list[Case]:
+              density: float = DEFAULT_DENSITY_KG_M3, forward, progress=None) -> list[Case]:
     preset = E.get_preset(preset)
     g = int(generations or preset.generations)
     rng = np.random.default_rng(seed)

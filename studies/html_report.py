@@ -77,7 +77,7 @@ def corner_png(path, samples_si, summary) -> Path:
 
 
 def flow_band_png(path, summary, rheometer=None) -> Path:
-    from similarity.space import Material
+    from mpm.params import Material
 
     plt = _plt()
     band = summary["flow_band"]

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from similarity.space import Material
+from mpm.params import Material
+from similarity.normals import poiseuille_landscape
 from studies.report import save_figure
 
 
@@ -17,8 +18,6 @@ def plot_slices(path, rec: dict, offsets, grid: int) -> Path:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from studies.landscapes import poiseuille_landscape
 
     m = Material(**rec["material"])
     offsets = np.asarray(offsets, dtype=float)

@@ -36,11 +36,12 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import read_json
+from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_pairs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
-from similarity.normals import normals_at
-from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize, normalize
+from similarity.normals import P_SEARCH, normals_at
+from similarity.space import denormalize, normalize
 from studies.conditioning import conditioning  # noqa: F401 (re-exported)
 from studies.landscape_plots import plot_slices
 from studies.report import write_json
@@ -49,7 +50,6 @@ from surrogate import theta_fit
 STUDY_FILE = "study.json"
 RESULT_FILE = "landscapes.json"
 FORMAT = "virheometry-landscapes/1"
-P_SEARCH = 2500.0  # Pa/m: P of the 1D search (only P L matters, section 5.5)
 C_SEARCH = np.geomspace(0.5, 2000.0, 400)  # Pa: candidate wall stresses C = P L of the 1D search
 
 
@@ -64,7 +64,7 @@ class StudyConfig:
     fd_step: float = 0.05  # finite-difference step (normalised)
     preset: str = "demo"
     seed: int = 0
-    density: float = 1000.0
+    density: float = DEFAULT_DENSITY_KG_M3
     region: tuple | None = None  # SI box ((eta_lo, eta_hi), (n_lo, n_hi), (sy_lo, sy_hi)); None: the space
 
     def check(self) -> "StudyConfig":
@@ -276,12 +276,3 @@ def load(folder) -> dict:
     if not isinstance(data, dict) or data.get("format") != FORMAT:
         raise ValueError(f"{path} is not a landscape study file (format {FORMAT})")
     return data
-
-
-# -- the Poiseuille counterpart of a landscape ---------------------------------------------------------------------------------------------
-def poiseuille_landscape(material: Material, offsets, c_pa: float) -> np.ndarray:
-    """The plane-Poiseuille loss (eq. 26) at material offsets (normalised) for wall stress C = P L."""
-    from poiseuille import loss
-
-    m_tilde = denormalize(normalize(material.as_array()) + np.asarray(offsets, dtype=float))
-    return loss(m_tilde, material.as_array(), P_SEARCH, c_pa / P_SEARCH)

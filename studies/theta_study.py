@@ -12,8 +12,9 @@ import json
 
 import numpy as np
 
+from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity.fd_hessian import angle_deg
-from similarity.space import SETUP_RANGE_MM, Material, Setup, denormalize
+from similarity.space import denormalize
 from studies.landscapes import match, random_setups
 from surrogate import theta_fit
 

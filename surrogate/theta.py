@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 from sklearn.preprocessing import PolynomialFeatures
 
+from mpm.params import material_array, setup_arrays
+
 FORMAT = "virheometry-theta/1"
 PRIMES = np.array([2, 3, 5, 7, 11, 13, 17, 19, 23, 29])
 FEATURE_NAMES = ("eta", "n", "sigma_y", "H", "W", "1/eta", "1/n", "1/(sigma_y+eps)", "1/H", "1/W")
@@ -64,27 +66,6 @@ def design_matrix(eta, n, sigma_y, height_m, width_m, sigma_eps=1e-4) -> np.ndar
     perm = [cols[tuple(p)] for p in monomial_powers()]
     out = poly.transform(flat)[:, perm] * monomial_weights()
     return out.reshape(z.shape[:-1] + (N_COEFFS,))
-
-
-def _material_arrays(material):
-    if all(hasattr(material, k) for k in ("eta", "n", "sigma_y")):
-        return material.eta, material.n, material.sigma_y
-    m = np.asarray(material, dtype=float)
-    if m.shape[-1:] != (3,):
-        raise ValueError(f"material must be a Material or an array (..., 3) of eta, n, sigma_y; got shape {m.shape}")
-    return m[..., 0], m[..., 1], m[..., 2]
-
-
-def _setup_arrays(setup):
-    """(width_mm, height_mm) from a Setup, a (width_mm, height_mm) pair of arrays, or an array (..., 2)."""
-    if hasattr(setup, "width_mm") and hasattr(setup, "height_mm"):
-        return setup.width_mm, setup.height_mm
-    if isinstance(setup, tuple) and len(setup) == 2:
-        return setup
-    a = np.asarray(setup, dtype=float)
-    if a.shape[-1:] != (2,):
-        raise ValueError(f"setup must be a Setup, a (width_mm, height_mm) pair or an array (..., 2); got shape {a.shape}")
-    return a[..., 0], a[..., 1]
 
 
 @dataclass(frozen=True, eq=False)
@@ -139,7 +120,7 @@ class ThetaMap:
     def __call__(self, material, setup):
         """Theta(M, S) -> (P, L): ``material`` a Material or (..., 3) array, ``setup`` a Setup,
         a (width_mm, height_mm) pair of arrays (e.g. ``candidate_setups()``) or an (..., 2) array."""
-        return self.pl(*_material_arrays(material), *_setup_arrays(setup))
+        return self.pl(*np.moveaxis(material_array(material), -1, 0), *setup_arrays(setup))
 
     def to_dict(self) -> dict:
         return {

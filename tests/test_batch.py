@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 
 from mpm import batch
+from mpm.params import Material, Setup
 from mpm.store import Store
-from similarity.space import Material, Setup
 
 SIM = "fake_forward:simulate"
 

@@ -208,3 +208,24 @@ def test_disk_full_and_damaged_files_are_one_line(capsys, monkeypatch, tmp_path)
     assert one_error_line(capsys, argv) == (
         "virheo design: error: the simulation store's index cannot be used (database is locked); "
         "if another run uses the same store, wait for it; else pass another --store")
+
+
+@pytest.mark.parametrize("python_warnings", ["", "ignore"])
+def test_quiet_still_reports_a_damaged_store_in_one_line(tmp_path, python_warnings):
+    """--quiet silences progress, never a loss of data: the index set aside is one line on stderr, even where
+    Python's own warnings are switched off."""
+    out = tmp_path / "out"
+    store = out / "store"
+    store.mkdir(parents=True)
+    (store / "index.sqlite").write_bytes(b"this is not a database" * 100)
+    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate",
+               PYTHONWARNINGS=python_warnings)
+    proc = subprocess.run([sys.executable, "-m", "studies.cli", "study", "emulation", "--materials", "1", "--runs", "1",
+                           "--generations", "1", "--workers", "0", "--quiet", "--out", str(out)],
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    aside = [p for p in store.glob("index.sqlite.damaged-*") if p.name[-1].isdigit()]
+    assert len(aside) == 1 and (store / "index.sqlite").is_file()
+    assert proc.stderr.splitlines() == [
+        f"virheo study: warning: store index {store / 'index.sqlite'} was damaged (file is not a database); "
+        f"moved to {aside[0].name}; rebuilt from 0 intact simulations on disk"]

@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mpm.params import Material
 from mpm.runtime import ENGINES, engine_name
 from similarity.estimate import bound_warnings
 from similarity.presets import PRESETS
-from similarity.space import Material, e_rel
+from similarity.space import e_rel
 from studies.cli import main
 
 TESTS = Path(__file__).resolve().parent

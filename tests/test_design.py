@@ -3,10 +3,11 @@ import numpy as np
 import pytest
 
 from mpm.datasets import first_estimates
+from mpm.params import Material, Setup
 from poiseuille import hessian
 from similarity.design import least_perpendicular_setup, next_setup, rank_setups
 from similarity.normals import loss_normal, loss_normals, normals_at, perpendicularity, top_eigenvector
-from similarity.space import EXTENT, Material, Setup, candidate_setups
+from similarity.space import EXTENT, candidate_setups
 from surrogate.theta import load
 
 

@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mpm.params import SETUP_RANGE_MM, Setup
 from similarity.belief import PRIOR_PRECISION, archive_belief, frames_precision, psd_projection, quadratic_hessian
 from similarity.estimate import _takes_stage
 from similarity.likelihood import NoiseScale
 from similarity.proposers import Eig, Random
-from similarity.space import SETUP_RANGE_MM, Setup
 
 TESTS = Path(__file__).resolve().parent
 ENV = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")

@@ -15,11 +15,12 @@ import pytest
 
 from mpm import batch
 from mpm.forward import Forward
+from mpm.params import Material, Setup
 from mpm.store import Store
 from similarity import cma_stage
 from similarity import estimate as E
 from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED, setup_of
-from similarity.space import Material, Setup, denormalize, e_rel
+from similarity.space import denormalize, e_rel
 
 SIM = "fake_forward:simulate"
 TRUTH = Material(3.0, 0.6, 12.0)
@@ -145,7 +146,7 @@ _RUNNER = textwrap.dedent("""
     sys.path[:0] = [{repo!r}, {tests!r}]
     from mpm.store import Store
     from similarity import estimate as E
-    from similarity.space import Material, Setup
+    from mpm.params import Material, Setup
     from mpm.forward import Forward
     forward = Forward(Store(sys.argv[1]), simulator="fake_forward:simulate")
     exps = E.emulate(Material(3.0, 0.6, 12.0), [Setup(30, 50), Setup(60, 25)], forward=forward,

@@ -13,7 +13,7 @@ from mpm import batch, runtime
 from mpm.forward import Forward, ForwardModel, blank_experiment
 from mpm.store import Store
 from similarity.cma_stage import Stage
-from similarity.space import Material, Setup
+from mpm.params import Material, Setup
 
 SIM = "fake_forward:simulate"
 SIZE = (96, 54)

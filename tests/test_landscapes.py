@@ -128,7 +128,7 @@ def test_conditioning_holds_one_chunk_of_footage_at_a_time(tmp_path, monkeypatch
     # the paper's 51 x 51 setup grid is 2601 footages of ~4 MB: the study emulates them a chunk at a time,
     # and the condition numbers do not depend on the chunking
     from similarity import estimate as E
-    from similarity.space import Material
+    from mpm.params import Material
     from studies import conditioning as C
 
     sizes, emulate = [], E.emulate

@@ -9,11 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from mpm.params import Material, Setup
 from similarity.design import expected_information_gain, rank_setups
-from similarity.ellipsoid import alignment, ellipsoid, finite_difference_hessian
+from similarity.ellipsoid import alignment, ellipsoid
+from similarity.fd_hessian import fd_hessian
 from similarity.likelihood import correlation_area, noise_scale
 from similarity.mcmc import gaussian_moments_check, sample
-from similarity.space import Material, Setup
 from surrogate.emulator import LossEmulator, space_filling
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -159,7 +160,7 @@ def test_ellipsoid_and_laplace_hessian():
     assert np.allclose(e.lengths ** 2 / 6.251388631170325, lam)  # chi2_3(0.9)
     assert np.allclose(e.axes.T @ e.axes, np.eye(3), atol=1e-12)
     prec = np.linalg.inv(COV)
-    h = finite_difference_hessian(lambda x: 0.5 * np.einsum("ij,jk,ik->i", x - MEAN, prec, x - MEAN), MEAN, 1e-3)
+    h = fd_hessian(lambda x: 0.5 * np.einsum("ij,jk,ik->i", x - MEAN, prec, x - MEAN), MEAN, 1e-3)
     assert np.allclose(h, prec, rtol=1e-6)
     assert alignment(e.thin, e.thin) == pytest.approx(1.0) and alignment(e.axes[:, 0], e.axes[:, 2]) < 1e-12
 

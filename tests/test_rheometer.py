@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from similarity.space import Material
+from mpm.params import Material
 from studies.cli import main
 from surrogate.rheometer import fit_herschel_bulkley, log_stress_rms, read_flow_curve
 

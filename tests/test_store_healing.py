@@ -6,9 +6,9 @@ import pytest
 
 from mpm.files import atomic_write
 from mpm.forward import Forward
+from mpm.params import Material, Setup
 from mpm.store import Store, StoreWarning
 from similarity import estimate as E
-from similarity.space import Material, Setup
 
 SIM = "fake_forward:simulate"
 SIZE = (96, 54)

@@ -5,7 +5,8 @@ from itertools import combinations_with_replacement
 import numpy as np
 import pytest
 
-from similarity.space import Material, Setup, candidate_setups
+from mpm.params import Material, Setup
+from similarity.space import candidate_setups
 from surrogate.theta import FEATURE_NAMES, ThetaMap, design_matrix, load, monomial_powers
 
 PRIMES = [2, 3, 5, 7, 11, 13, 17, 19, 23, 29]

@@ -4,7 +4,8 @@ import json
 import numpy as np
 import pytest
 
-from similarity.space import Material, denormalize, normalize
+from mpm.params import Material
+from similarity.space import denormalize, normalize
 from studies import landscapes as LS
 from studies.cli import main
 from studies.report import write_json

@@ -106,7 +106,7 @@ def add_run_options(p: argparse.ArgumentParser, *, default_out: str | None, gene
     if generations:
         p.add_argument("--generations", type=integer, default=None, metavar="N",
                        help="CMA-ES generations per stage (default: the preset's)")
-    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--quiet", action="store_true", help="no progress bars (a damaged store is still reported)")
 
 
 def add_posterior_options(p: argparse.ArgumentParser) -> None:
@@ -221,3 +221,14 @@ def open_run(args):
 
         run.progress = progress
         yield run
+
+
+def report_data_losses() -> None:
+    """Show every ``StoreWarning`` (a damaged index, simulation file or checkpoint set aside), whatever
+    ``-W``, ``PYTHONWARNINGS`` or an earlier warning said: ``--quiet`` silences progress, never a loss of data.
+    Call it inside the command's ``warnings.catch_warnings()``."""
+    import warnings
+
+    from mpm.store import StoreWarning
+
+    warnings.simplefilter("always", StoreWarning)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 
+from mpm.params import DEFAULT_DENSITY_KG_M3
 from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real, seed
 
 # The embedded default specimen (SI) and its first setup (mm); see docs/performance.md (estimate).
@@ -21,8 +22,8 @@ def register(subparsers) -> None:
                    help=f"ground truth: eta [Pa s^n], n [-], sigma_y [Pa] (default {DEFAULT_TRUTH})")
     p.add_argument("--setup", default=DEFAULT_FIRST_SETUP, metavar="WxH",
                    help=f"first setup, width x height in mm (default {DEFAULT_FIRST_SETUP})")
-    p.add_argument("--density", type=real, default=1000.0, metavar="KG_M3",
-                   help="density of the material in kg/m^3 (default 1000)")
+    p.add_argument("--density", type=real, default=DEFAULT_DENSITY_KG_M3, metavar="KG_M3",
+                   help=f"density of the material in kg/m^3 (default {DEFAULT_DENSITY_KG_M3:g})")
     p.add_argument("--seed", type=seed, default=DEFAULT_SEED, help=f"CMA-ES seed (default {DEFAULT_SEED})")
     add_preset_option(p, default="demo")
     add_run_options(p, default_out="./virheo-demo")
@@ -32,7 +33,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from mpm.ranges import check_density
     from similarity import estimate as E
-    from similarity.space import Material, Setup
+    from mpm.params import Material, Setup
     from studies.report import write_estimate_report
 
     truth = Material.parse(args.material).check_in_space()

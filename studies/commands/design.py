@@ -40,7 +40,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from similarity.design import rank_setups
-    from similarity.space import Material, Setup
+    from mpm.params import Material, Setup
     from surrogate.theta import load
 
     covariance = None

@@ -35,7 +35,7 @@ def load_experiments(dirs, command: str) -> list:
     """Experiment folders read and checked before any work: malformed folders, setups outside the setup
     space and footage without evidence (no material, no motion, material leaving the image) stop here."""
     from mpm import experiment
-    from similarity.space import Setup
+    from mpm.params import Setup
 
     experiments = [experiment.load(d) for d in dirs]
     for e in experiments:

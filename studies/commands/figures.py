@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from studies.commands.context import check_engine
+from studies.commands.context import check_engine, simulator
 
 
 def register(subparsers) -> None:
@@ -58,7 +58,7 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     forward = Forward(args.store or out / "store", workers=args.workers if simulating else 0)
-    context = Context(forward=forward, landscapes=args.landscapes)
+    context = Context(forward=forward, landscapes=args.landscapes, simulator=simulator())
     made = missing = 0
     t_all = time.perf_counter()
     try:

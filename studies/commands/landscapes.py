@@ -79,7 +79,7 @@ def run_landscapes(args: argparse.Namespace) -> int:
 
 
 def run_conditioning(args: argparse.Namespace) -> int:
-    from similarity.space import Material
+    from mpm.params import Material
     from studies import landscapes as LS
 
     check_run_options(args)

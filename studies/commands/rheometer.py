@@ -27,7 +27,7 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from similarity.space import Material
+    from mpm.params import Material
     from surrogate.rheometer import fit_herschel_bulkley, log_stress_rms, read_flow_curve
 
     if not (0 < args.lo < args.hi):

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm.params import FLOW_RULES
+from mpm.params import DEFAULT_DENSITY_KG_M3, DEFAULT_DEPTH_MM, FLOW_RULES
 from studies.commands.context import check_engine, integer, real
 
 HELP = """Simulate a Herschel-Bulkley dam-break for 1/3 s (8 frames at 24 fps).
@@ -30,9 +30,9 @@ def register(sub) -> None:
     src.add_argument("--experiment", metavar="DIR", help="experiment folder: camera, density, depth and footage")
     src.add_argument("--camera", metavar="XML", help="camera_params.xml (default: the built-in default camera)")
     p.add_argument("--density", type=real, default=None, metavar="KG_M3",
-                   help="density in kg/m^3 (default 1000, or the experiment's)")
+                   help=f"density in kg/m^3 (default {DEFAULT_DENSITY_KG_M3:g}, or the experiment's)")
     p.add_argument("--depth-mm", type=real, default=None, metavar="MM",
-                   help="box depth in mm (default 40, or the experiment's)")
+                   help=f"box depth in mm (default {DEFAULT_DEPTH_MM:g}, or the experiment's)")
     p.add_argument("--dim", type=integer, choices=(2, 3), default=3, help="3 (default) or 2 (plane strain)")
     p.add_argument("--cell-mm", type=real, default=None, metavar="MM",
                    help="grid cell width in mm (default: the solver's)")
@@ -55,7 +55,7 @@ def run(args) -> int:
     from mpm import camera as cam
     from mpm import experiment as xp
     from mpm.ranges import check_density, check_simulable
-    from similarity.space import Material, Setup
+    from mpm.params import Material, Setup
     from studies.report import overlay_pngs, write_json
 
     material = Material.parse(args.material)
@@ -92,8 +92,8 @@ def run(args) -> int:
     if args.ppc is not None and not 1 <= args.ppc <= 4:
         raise ValueError(f"--ppc {args.ppc} must be 1..4")
     camera = exp.camera if exp else (cam.Camera.from_xml(args.camera) if args.camera else cam.Camera.default())
-    density = args.density or (exp.density if exp else 1000.0)
-    depth_mm = args.depth_mm or (exp.depth_mm if exp else 40.0)
+    density = args.density or (exp.density if exp else DEFAULT_DENSITY_KG_M3)
+    depth_mm = args.depth_mm or (exp.depth_mm if exp else DEFAULT_DEPTH_MM)
     check_engine()
     out.mkdir(parents=True, exist_ok=True)
 

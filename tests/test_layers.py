@@ -1,0 +1,106 @@
+"""The floors of docs/layers.md: import-linter's contracts in pyproject.toml hold, the import graph has no cycle
+(of modules, or of floors through the command line), and an upward import breaks them."""
+import copy
+from pathlib import Path
+
+import grimp
+import numpy as np
+import pytest
+from importlinter import api
+from importlinter.application.use_cases import lint_imports
+from importlinter.contracts.forbidden import ForbiddenContract
+from importlinter.contracts.independence import IndependenceContract
+from importlinter.contracts.layers import LayersContract
+from importlinter.contracts.protected import ProtectedContract
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
+
+CONFIG = Path(__file__).resolve().parent.parent / "pyproject.toml"
+CONTRACT_TYPES = {"layers": LayersContract, "forbidden": ForbiddenContract, "protected": ProtectedContract,
+                  "independence": IndependenceContract}
+COMMAND_LINE = ("studies.commands", "studies.cli")
+
+
+@pytest.fixture(scope="module")
+def config() -> dict:
+    return api.read_configuration(str(CONFIG))
+
+
+@pytest.fixture(scope="module")
+def graph(config) -> grimp.ImportGraph:
+    return grimp.build_graph(*config["session_options"]["root_packages"], cache_dir=None)
+
+
+def broken_contracts(graph, config) -> list[str]:
+    """Ids of the pyproject.toml contracts that ``graph`` breaks."""
+    broken = []
+    for options in config["contracts_options"]:
+        contract = CONTRACT_TYPES[options["type"]](name=options["name"], session_options=config["session_options"],
+                                                   contract_options=options)
+        if not contract.check(copy.deepcopy(graph), verbose=False).kept:  # check() drops the ignored imports
+            broken.append(options["id"])
+    return broken
+
+
+def cycles(nodes, edges) -> list[list[str]]:
+    """The strongly connected components of more than one node: each holds at least one cycle."""
+    index = {n: i for i, n in enumerate(sorted(nodes))}
+    rows, cols = zip(*((index[a], index[b]) for a, b in edges)) if edges else ((), ())
+    adjacency = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(len(index), len(index)))
+    count, label = connected_components(adjacency, directed=True, connection="strong")
+    members = [[] for _ in range(count)]
+    for name, k in zip(sorted(nodes), label):
+        members[k].append(name)
+    return [m for m in members if len(m) > 1]
+
+
+def module_edges(graph) -> set:
+    return {(m, d) for m in graph.modules for d in graph.find_modules_directly_imported_by(m) if d != m}
+
+
+def floor(module: str) -> str:
+    """The floor a module stands on: its top-level package, the command line counted as a floor of its own."""
+    return "command line" if module.startswith(COMMAND_LINE) else module.split(".")[0]
+
+
+def floor_edges(graph) -> set:
+    return {(floor(a), floor(b)) for a, b in module_edges(graph) if floor(a) != floor(b)}
+
+
+def test_lint_imports_keeps_every_contract(capsys):
+    assert lint_imports(config_filename=str(CONFIG), cache_dir=None, no_logo=True), capsys.readouterr().out
+
+
+def test_the_graph_is_the_projects_and_keeps_every_contract(graph, config):
+    assert {"mpm.params", "studies.commands.figures", "paper_figures._landscape_data"} <= graph.modules
+    assert broken_contracts(graph, config) == []
+
+
+def test_no_module_cycles_and_no_cycle_through_the_command_line(graph):
+    assert cycles(graph.modules, module_edges(graph)) == []
+    floors = {floor(m) for m in graph.modules}
+    assert "command line" in floors and cycles(floors, floor_edges(graph)) == []
+
+
+@pytest.mark.parametrize("importer, imported, contract", [
+    ("poiseuille.flow", "similarity.space", "floors"),
+    ("mpm.solver", "surrogate.theta", "floors"),
+    ("poiseuille.loss", "mpm.batch", "floors"),
+    ("surrogate.theta", "mpm.store", "value-types"),
+    ("mpm.params", "mpm.camera", "value-types-stand-alone"),
+    ("paper_figures._landscape_data", "studies.commands.context", "command-line-on-top"),
+    ("studies.landscapes", "paper_figures._plot", "figures-for-the-command-line"),
+])
+def test_an_upward_import_breaks_a_contract(graph, config, importer, imported, contract):
+    upward = copy.deepcopy(graph)
+    upward.add_import(importer=importer, imported=imported)
+    assert contract in broken_contracts(upward, config)
+
+
+def test_the_cycle_checks_see_a_circle(graph):
+    # the circle that paper_figures once closed through the command line, and a module circle inside mpm
+    upward = copy.deepcopy(graph)
+    upward.add_import(importer="paper_figures._landscape_data", imported="studies.commands.context")
+    assert ["command line", "paper_figures"] in cycles({floor(m) for m in upward.modules}, floor_edges(upward))
+    upward.add_import(importer="mpm.params", imported="mpm.solver")
+    assert any("mpm.params" in c and "mpm.solver" in c for c in cycles(upward.modules, module_edges(upward)))
