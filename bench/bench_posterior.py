@@ -41,6 +41,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
+    print(f"# measured: {how_measured()}", flush=True)
     center = np.array([0.3, 0.5, 0.4])
     X = space_filling(center, 0.1, args.points, seed=args.seed)
     t0 = time.perf_counter()

@@ -27,6 +27,7 @@ from mpm.store import Store  # noqa: E402
 from similarity.emulation import emulate, probe_jobs  # noqa: E402
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 from similarity.space import Material, Setup  # noqa: E402
 
 # inside the region the landscape studies sample; setups from both ends of the setup space
@@ -61,6 +62,7 @@ def main(argv=None) -> int:
     views = {"front": Camera.default(), f"swung {a.yaw:g} deg": swung(Camera.default(), a.yaw)}
     offsets = stencil(a.fd_step)
     angles = []
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"FD loss normal (d eta, d n, d sigma_Y normalised) per view, {a.cell_mm:g} mm cells, step {a.fd_step:g}")
     try:
         for mat, (w, h) in PAIRS:
