@@ -21,6 +21,7 @@ from types import SimpleNamespace as NS
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 DEFAULT_EXPERIMENTS = ("ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2", "ref_Lotion_2.5_5.1_1",
                        "ref_Cobb_2.0_2.9_2", "ref_Carbonara_2.0_2.5_2")
@@ -75,6 +76,7 @@ def main(argv=None) -> int:
         ap.error(f"--experiments {unknown[0]}: not a shared experiment (one of {', '.join(known)}, or all)")
     fine = a.fine_mm or a.cell_mm / 2
     jobs = [(f, c, b, a.ppc, a.density_correction) for f in folders for b in a.slip_m for c in (a.cell_mm, fine)]
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"# IoU of cell {a.cell_mm:g} mm vs {fine:g} mm ({a.ppc} particle(s) per cell per axis), Table-1 parameters; "
           f"loss = video loss against the footage{'; density-corrected' if a.density_correction else ''}")
     print(f"{'experiment':<52} {'slip mm':>7} {'mean IoU':>8} {'min IoU':>8} {'loss':>7} {'loss fine':>9} "

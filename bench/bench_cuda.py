@@ -30,6 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 
 @contextmanager
@@ -110,6 +111,7 @@ def main(argv=None) -> int:
     mat = Material(float(row["paper_eta_Pa_s_n"]), float(row["paper_n"]), float(row["paper_sigma_y_Pa"]))
     cores = os.cpu_count() or 1
     warm = replace(VALIDATED, cell_mm=6.0, slip_length_m=a.slip_m)
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"# {a.experiment} at Table 1 ({mat.eta:g} Pa s^n, {mat.n:g}, {mat.sigma_y:g} Pa), slip {a.slip_m * 1e3:g} mm;"
           f" {cores} CPU cores", flush=True)
 

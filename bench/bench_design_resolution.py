@@ -24,6 +24,7 @@ from mpm.loss import video_loss  # noqa: E402
 from mpm.params import Material, Setup  # noqa: E402
 from similarity.emulation import emulate  # noqa: E402
 from similarity.presets import get_preset  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 from studies.design_study import records  # noqa: E402
 
 
@@ -58,6 +59,7 @@ def main() -> None:
     fine = dataclasses.replace(coarse, cell_mm=args.cell_mm)
     forward = Forward(args.store, workers=args.workers)
     rows = []
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"case criterion E_rel loss@{coarse.final.resolved().cell_mm:g}mm loss@{args.cell_mm:g}mm")
     try:
         for r in recs:

@@ -15,10 +15,7 @@ experiment and runouts within one cell. Experiments that miss it get their per-f
 from __future__ import annotations
 
 import argparse
-import datetime
-import hashlib
 import os
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,6 +24,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
+
+from measured import how_measured, load  # noqa: E402  (bench/ is this script's folder)
 
 ENGINES = ("taichi-cpu", "native")  # reference first
 MIN_IOU = 0.99  # acceptance: in every frame of every experiment
@@ -86,35 +85,6 @@ class Agreement:
     @property
     def ok(self) -> bool:
         return bool(self.ious.min() >= MIN_IOU) and self.runout_ok
-
-
-def how_measured() -> str:
-    """Date, commit, CPU, load, threads and the native engine's SIMD path: one line."""
-    from mpm import native_engine, runtime
-
-    try:
-        commit = subprocess.run(["git", "-C", str(ROOT), "describe", "--always", "--dirty"], capture_output=True,
-                                text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
-    cpu = next((line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")),
-               "unknown CPU") if os.path.exists("/proc/cpuinfo") else "unknown CPU"
-    return (f"{datetime.datetime.now().isoformat(timespec='minutes')}, commit {commit}, {cpu} ({os.cpu_count()} "
-            f"cores), load {load()}, {runtime.threads()} thread(s) per engine, native isa {native_engine.isa()}, "
-            f"{native_build()}")
-
-
-def native_build() -> str:
-    """The native extension this process runs: its file's hash and time (a rebuild in place shows here)."""
-    from mpm import _native
-
-    path = Path(_native.__file__)
-    stamp = datetime.datetime.fromtimestamp(path.stat().st_mtime).isoformat(timespec="seconds")
-    return f"extension {path.name} sha256 {hashlib.sha256(path.read_bytes()).hexdigest()[:12]} built {stamp}"
-
-
-def load() -> str:
-    return "%.2f/%.2f/%.2f" % os.getloadavg()
 
 
 def table1(row: dict):

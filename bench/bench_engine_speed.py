@@ -39,7 +39,8 @@ sys.path.insert(0, str(HERE))  # bench/: the agreement measure lives in bench_en
 
 import numpy as np  # noqa: E402
 
-from bench_engine_agreement import ENGINES, Agreement, how_measured, load, simulate_on  # noqa: E402
+from bench_engine_agreement import ENGINES, Agreement, simulate_on  # noqa: E402
+from measured import how_measured, load  # noqa: E402
 
 MATERIAL = "0.55,0.81,1.95"  # Japanese thickened Worcestershire sauce, Table 1 (eta Pa s^n, n, sigma_y Pa)
 DENSITY = 1200.0  # kg/m^3, the sauce's

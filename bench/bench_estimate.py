@@ -23,6 +23,7 @@ from mpm.store import Store
 from similarity import estimate as E
 from similarity.space import e_rel
 from studies.commands.demo import DEFAULT_FIRST_SETUP, DEFAULT_TRUTH
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 
 def engines_of(store: Store) -> str:
@@ -54,6 +55,7 @@ def main(argv=None):
                if v is not None}
     preset = dataclasses.replace(preset, **changes)
     truth, first = Material.parse(args.material), Setup.parse(args.setup)
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"# uptime: {os.popen('uptime').read().strip()}")
     print(f"# preset {preset}")
     rows = []

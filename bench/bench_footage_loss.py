@@ -23,6 +23,7 @@ from mpm.datasets import first_estimates, real_world_dir  # noqa: E402
 from mpm.loss import frame_losses  # noqa: E402
 from mpm.params import Material  # noqa: E402
 from mpm.silhouette import default_radius_m, render_frames  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 WORCESTER_2 = "ref_JapaneseThickenedWorcestershireSauce_2.0_3.0_2"
 
@@ -51,6 +52,7 @@ def main(argv=None) -> None:
     exp = experiment.load(real_world_dir() / Path(args.experiment).name)
     material_name = known[exp.name]
     mat = setup1_estimate(material_name)
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"{exp.name}: W {exp.width_mm:g} x H {exp.height_mm:g} mm, rho {exp.density:g} kg/m^3, "
           f"material eta {mat.eta:.4g} Pa s^n, n {mat.n:.4g}, sigma_y {mat.sigma_y:.4g} Pa")
     radii = [float(r) * 1e-3 for r in args.radii.split(",") if r]

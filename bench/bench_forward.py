@@ -27,6 +27,7 @@ import mpm  # noqa: E402
 from mpm import runtime, solver  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
 from mpm.params import DEFAULT_DENSITY_KG_M3, DEFAULT_DEPTH_MM  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 REFERENCE_S = 570.0 + 8 * 24.0  # the reference implementation: 4500 steps in 570 s + 8 frames skinned at 19-32 s each
 PAPER = ("paper", 1.26, 2)  # the reference's discretisation: 1.26 mm cells, 2 particles per cell per axis
@@ -143,6 +144,7 @@ def main(argv=None) -> None:
     ap.add_argument("--skip-convergence", action="store_true")
     ap.add_argument("--skip-loss", action="store_true")
     a = ap.parse_args(argv)
+    print(f"# measured: {how_measured()}", flush=True)
     t0 = time.time()
     if not a.skip_timing:
         timing(a.paper_70)

@@ -24,6 +24,7 @@ from similarity.likelihood import NoiseScale  # noqa: E402
 from similarity.mcmc import sample  # noqa: E402
 from similarity.posterior import box_log_posterior  # noqa: E402
 from surrogate.emulator import LossEmulator, box, space_filling  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 
 def synthetic_loss(x, center, rng=None):
@@ -41,6 +42,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=150)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
+    print(f"# measured: {how_measured()}", flush=True)
     center = np.array([0.3, 0.5, 0.4])
     X = space_filling(center, 0.1, args.points, seed=args.seed)
     t0 = time.perf_counter()

@@ -22,6 +22,7 @@ from similarity.design import rank_setups  # noqa: E402
 from similarity.normals import top_eigenvector  # noqa: E402
 from similarity.space import candidate_setups  # noqa: E402
 from surrogate.theta import load  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 
 def timeit(fn, repeat: int) -> tuple[float, float]:
@@ -51,6 +52,7 @@ def main() -> None:
         ("  part: 2601 closed-form Hessians", lambda: hessian(material.eta, material.n, material.sigma_y, P, L)),
         ("  part: 2601 top eigenvectors (eigh)", lambda: top_eigenvector(H)),
     ]
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"{'what':48s} {'median ms':>10s} {'best ms':>9s}   (repeat {args.repeat})")
     for name, fn in rows:
         med, best = timeit(fn, args.repeat)

@@ -30,6 +30,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 SLUGS = {"Japanese thickened Worcestershire sauce": "worcestershire", "moisturizing milk": "milk",
          "Japanese cabbage pancake sauce": "okonomiyaki", "lotion": "lotion"}
@@ -221,6 +222,7 @@ def main(argv=None) -> int:
         results.setdefault(slug, {}).update(material=name, **score(out, paper, curves[name], args.workers, others))
         root.mkdir(parents=True, exist_ok=True)
         summary_path.write_text(json.dumps(results, indent=2))
+    print(f"# measured: {how_measured()}", flush=True)
     f = lambda m: f"{m['eta']:.3g}, {m['n']:.3g}, {m['sigma_y']:.3g}"  # noqa: E731
     print("| material | setups | our estimate (eta, n, sigma_y) | paper (Table 1) | loss ours | loss paper | "
           "RMS one setup | RMS ours | RMS paper | simulations | wall |")

@@ -23,6 +23,7 @@ from mpm.datasets import manifest, real_world_dir
 from mpm.params import Material
 from mpm.store import Store
 from similarity.space import center
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 
 def perturbations(m: Material) -> dict[str, Material]:
@@ -51,6 +52,7 @@ def main(argv=None) -> int:
         by_material.setdefault(r["material"], []).append(r)
     names = args.materials or list(by_material)
     store = Store(args.store)
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"# uptime: {os.popen('uptime').read().strip()}; cell_mm={args.cell_mm or 'default'}, "
           f"ppc={args.ppc or 'default'}")
     t0 = time.perf_counter()

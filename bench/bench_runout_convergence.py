@@ -18,6 +18,7 @@ import numpy as np
 import mpm
 from mpm import solver
 from mpm.params import Material, Setup
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 DEFAULT_RUNS = ("3,1", "1.5,1", "1,1", "0.75,1", "0.5,1", "0.375,1", "0.25,1", "1,1,0.25", "1,1,0.125",
                 "3,2", "2.5,2", "2,2", "1.5,2", "1.25,2", "1,2", "0.75,2", "0.5,2", "1,2,0.25")
@@ -36,6 +37,7 @@ def main(argv=None) -> int:
     material = Material.parse(args.material)
     setup = Setup.parse(args.setup)
     default_cfl = solver.CFL
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"# {args.dim}D, material {args.material}, setup {args.setup} mm, density {args.density:g} kg/m^3, "
           f"slip length {args.slip_m * 1e3:g} mm{', density-corrected' if args.density_correction else ''}")
     print("\n| cell mm | ppc | spacing mm | CFL | front per frame (mm) | final front mm | steps | wall s |")

@@ -20,6 +20,7 @@ from mpm import experiment  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
 from mpm.datasets import data_dir  # noqa: E402
 from mpm.silhouette import render_frames  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 
 def cloud(n_target: int, seed: int = 0) -> tuple[np.ndarray, float]:
@@ -44,6 +45,7 @@ def best_of(fn, repeats=3) -> float:
 
 def main() -> None:
     cam = Camera.default()
+    print(f"# measured: {how_measured()}", flush=True)
     print("render_frames: 8 frames at 960x540 (best of 3; the machine is shared, numbers are noisy)")
     print(f"{'particles':>10} {'spacing mm':>10} {'total s':>8} {'per frame ms':>12}")
     for n in (250, 2_000, 20_000, 50_000, 100_000, 200_000, 400_000):

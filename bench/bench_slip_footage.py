@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 
 from bench_real_estimates import SLUGS, parse_materials, rheometer_curves  # noqa: E402  (bench/ is this script's folder)
+from measured import how_measured  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -53,6 +54,7 @@ def main(argv=None) -> int:
     curves = rheometer_curves()
     rows = manifest()
     extra = "".join(f" {m.eta:g}, {m.n:g}, {m.sigma_y:g} |" for m in others)
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"| material | slip mm | cell mm | particles per cell per axis | rheometer fit | Table 1 |{extra}")
     print("|---|---:|---:|---:|---|---|" + "---|" * len(others))
     with Forward(args.store, workers=args.workers) as forward:

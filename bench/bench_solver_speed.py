@@ -31,6 +31,7 @@ from types import SimpleNamespace as NS
 ROOT = Path(__file__).resolve().parent.parent
 
 import numpy as np  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 
 def extract_base(rev: str, into: Path) -> str:
@@ -128,6 +129,7 @@ def main(argv=None) -> int:
             cache.mkdir()
             wenv["TI_OFFLINE_CACHE_FILE_PATH"] = str(cache)
         workers.append(Worker(name, package, path, a, wenv))
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"# old = {a.base} ({commit}), new = this checkout; one thread per worker process; {a.dim}D; "
           f"material {a.material}, setup {a.setup} mm, density 1000; load {os.getloadavg()[0]:.1f}")
     for wk in workers:  # one at a time, so that a cold compile has the machine to itself

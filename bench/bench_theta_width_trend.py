@@ -27,6 +27,7 @@ from similarity.emulation import emulate, probe_losses  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
 from studies.landscapes import grid_offsets, match  # noqa: E402
 from surrogate.theta import load as load_theta  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 # materials inside the region landscapes can sample: two Table-1-like sauces' first estimates and a mid-space one
 MATERIALS = {"pancake sauce (first estimate)": (3.45, 0.738, 6.26),
@@ -52,6 +53,7 @@ def main(argv=None) -> int:
     block = grid_offsets(GRID, HALF_WIDTH)
     reference = load_theta("reference")
     setups = [Setup(w, HEIGHT_MM) for w in a.widths]
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"matched C [Pa] at H = {HEIGHT_MM:g} mm, W = {' / '.join(f'{w:g}' for w in a.widths)} mm")
     try:
         for name, mat in MATERIALS.items():

@@ -27,6 +27,7 @@ from mpm.params import Material, Setup  # noqa: E402
 from similarity.emulation import emulate, probe_losses  # noqa: E402
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil  # noqa: E402
 from similarity.presets import Preset  # noqa: E402
+from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 # inside the region the landscape studies sample; setups from both ends of the setup space
 PAIRS = (((3.45, 0.738, 6.26), (42.0, 38.0)), ((9.82, 0.705, 12.9), (64.0, 37.0)), ((10.0, 0.6, 10.0), (30.0, 20.0)),
@@ -60,6 +61,7 @@ def main(argv=None) -> int:
     views = {"front": Camera.default(), f"swung {a.yaw:g} deg": swung(Camera.default(), a.yaw)}
     offsets = stencil(a.fd_step)
     angles = []
+    print(f"# measured: {how_measured()}", flush=True)
     print(f"FD loss normal (d eta, d n, d sigma_Y normalised) per view, {a.cell_mm:g} mm cells, step {a.fd_step:g}")
     try:
         for mat, (w, h) in PAIRS:

@@ -22,7 +22,7 @@ PRECISIONS = ("f32", "f64")
 ENGINES = ("native", "taichi-cpu", "cuda")  # what engine_name() returns, and stats["arch"] of a simulation
 ARCH_VALUES = ("auto", "cpu", "native", "taichi-cpu", "cuda")  # what $VIRHEO_ARCH may say
 # Taichi's own IR optimisation passes (CFG store forwarding, whole-kernel CSE) take minutes on the single-launch
-# 3D step kernel and gain little over LLVM's: off, the first compile takes seconds (docs/performance.md)
+# 3D step kernel and gain little over LLVM's: off, the first compile takes seconds (docs/decisions.md#engine)
 ADVANCED_OPTIMIZATION = False
 _SAID: set = set()  # the notices this process has printed (or left to the process that started it)
 _STARTED = {"arch": None}  # the architecture Taichi was initialised for

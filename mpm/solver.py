@@ -26,10 +26,10 @@ from mpm import scene as sc
 from mpm.params import (DEFAULT_DEPTH_MM, FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule,
                         frame_times)
 
-DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/performance.md
+DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/decisions.md#discretisation
 CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6-0.65 still stable, 0.8 blows up (docs/method/forward-model.md)
 PARTICLES_PER_CELL = 1  # per axis (the reference implementation uses 2; see docs/method/forward-model.md)
-SLIP_LENGTH_M = 0.0  # Navier slip length of floor and walls (0: sticking); measured: docs/performance.md
+SLIP_LENGTH_M = 0.0  # Navier slip length of floor and walls (0: sticking); measured: docs/decisions.md#walls
 SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame interval
 
 __all__ = ["simulate", "Simulation", "SimulationError", "DEFAULT_CELL_MM", "CFL", "PARTICLES_PER_CELL",

@@ -2,7 +2,7 @@
 
 A preset names what it is for: ``demo`` (emulated footage, about a minute on a laptop), ``footage`` (real
 footage: Algorithm 1 on a cheap model, finished at the solver's validated discretisation with slipping walls)
-and ``paper`` (the paper's budget and discretisation).  Costs and accuracy: docs/performance.md.
+and ``paper`` (the paper's budget and discretisation).  Costs and accuracy: docs/performance.md; why these defaults: docs/decisions.md#presets.
 """
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ PAPER_SIGMA0 = 0.1  # stage-1 step size in [0, 1]^3: the paper's Sigma = 1 in a 
 
 VALIDATED = ForwardModel()  # the solver's default: converged against a 2x finer run on the shared footage
 # real footage: the validated cells with walls slipping by one global slip length, chosen on the shared footage
-# (docs/performance.md#wall-slip)
+# (docs/decisions.md#walls)
 FOOTAGE_SLIP_LENGTH_M = 1e-3
 FOOTAGE_MODEL = replace(VALIDATED, slip_length_m=FOOTAGE_SLIP_LENGTH_M)
 

@@ -25,8 +25,8 @@ def register(subparsers) -> None:
                    "in docs/performance.md, Wall slip)")
     p.add_argument("--density-correction", action="store_true",
                    help="the solver's density correction in every stage (one particle per cell then converges in "
-                   "2D and ranks materials like the paper's discretisation; measured in docs/validation.md, "
-                   "The density correction)")
+                   "2D and ranks materials like the paper's discretisation; measured in docs/decisions.md, "
+                   "Density correction)")
     add_run_options(p, default_out=None)
     p.set_defaults(func=run)
 
