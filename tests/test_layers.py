@@ -90,6 +90,8 @@ def test_no_module_cycles_and_no_cycle_through_the_command_line(graph):
     ("mpm.params", "mpm.camera", "value-types-stand-alone"),
     ("paper_figures._landscape_data", "studies.commands.context", "command-line-on-top"),
     ("studies.landscapes", "paper_figures._plot", "figures-for-the-command-line"),
+    ("similarity.posterior", "mpm.store", "forward-model-seam"),
+    ("studies.calibration", "mpm.batch", "forward-model-seam"),
 ])
 def test_an_upward_import_breaks_a_contract(graph, config, importer, imported, contract):
     upward = copy.deepcopy(graph)
