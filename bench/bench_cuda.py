@@ -30,7 +30,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
-from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
+from bench_engine_speed import parse_model  # noqa: E402  (bench/ is this script's folder)
+from measured import how_measured  # noqa: E402
 
 
 @contextmanager
@@ -52,19 +53,6 @@ def arch_env(arch: str, threads: int, cores: int = 0):
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
-
-
-def parse_model(text: str):
-    from mpm.forward import ForwardModel
-
-    cell, _, ppc = text.partition(":")
-    try:
-        model = ForwardModel(float(cell), int(ppc or 1))
-    except ValueError:
-        raise SystemExit(f"bench_cuda: model {text!r}: give CELL_MM:PPC, e.g. 1.5:1") from None
-    if not (model.cell_mm > 0 and model.ppc >= 1):
-        raise SystemExit(f"bench_cuda: model {text!r}: cell width > 0 mm and >= 1 particle per axis")
-    return model
 
 
 def run(requests, workers: int):
@@ -102,8 +90,11 @@ def main(argv=None) -> int:
     ap.add_argument("--workers", type=int, nargs="*", default=[1, 4, 8], help="CUDA processes for the population")
     ap.add_argument("--slip-m", type=float, default=FOOTAGE_SLIP_LENGTH_M, help="walls' slip length in metres")
     a = ap.parse_args(argv)
-    models = [replace(parse_model(m), slip_length_m=a.slip_m) for m in a.models]
-    cpu_models = [replace(parse_model(m), slip_length_m=a.slip_m) for m in a.cpu_models]
+    try:
+        models = [replace(parse_model(m), slip_length_m=a.slip_m) for m in a.models]
+        cpu_models = [replace(parse_model(m), slip_length_m=a.slip_m) for m in a.cpu_models]
+    except ValueError as exc:
+        raise SystemExit(f"bench_cuda: {exc}") from None
     row = next((r for r in manifest() if r["folder"] == a.experiment), None)
     if row is None:
         raise SystemExit(f"bench_cuda: no shared experiment {a.experiment!r}")
