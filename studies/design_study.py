@@ -154,6 +154,9 @@ class DesignSummary(JsonRecord):
     equal_budget: int
     ordered: bool | None = None  # eig >= perpendicularity > random in good cases (None: not all three ran)
 
+    READERS = {"criteria": lambda d: {k: CriterionSummary.from_dict(v) for k, v in d.items()},
+               "paired": lambda d: {k: PairedSummary.from_dict(v) for k, v in d.items()}}
+
     def to_dict(self) -> dict:
         d = super().to_dict()
         ordered = d.pop("ordered")

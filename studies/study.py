@@ -19,8 +19,12 @@ How to add a study
    ``cases()`` (the planned cases in order, each with a ``folder``), ``run_case(case, forward=, progress=)``
    (a record), ``summary(records)``, ``table(records, summary)`` (markdown) and ``plots(records, summary)``;
    optionally ``announce(case)`` / ``report(record)`` (progress lines) and ``result`` (the JSON layout).
-4. Its command in ``studies/commands/`` builds the study with ``Study(out, config)`` and calls
-   ``run(forward=..., progress=...)``; ``Study(out).write()`` rewrites the outputs from the finished cases.
+4. A ``run_study(out, ..., forward, progress)`` in its module checks the options, builds the configuration (what
+   a case's result depends on: preset, seeds, budgets, the simulator) and returns
+   ``TheStudy(out, config).run(forward=forward, progress=progress)``; its command in ``studies/commands/``
+   calls that.  ``TheStudy(out).records()`` reads the finished cases back (benches, figures).
+
+:mod:`studies.design_study` is the shortest complete example.
 """
 from __future__ import annotations
 

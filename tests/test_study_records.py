@@ -65,6 +65,7 @@ def test_design_case_file_from_before_is_finished_and_loads(tmp_path):
     assert res["cases"] == [old] and res["summary"]["cases"] == 1
     good = sum(v["e_rel"] <= D.GOOD for v in old["criteria"].values())
     assert sum(v["good"] for v in res["summary"]["criteria"].values()) == good
+    assert D.DesignSummary.from_dict(res["summary"]).to_dict() == res["summary"]  # design.json's summary reads back
     # another configuration is told in one line, before anything runs
     other = D.DesignStudy(out, old["config"] | {"seed": 1}, cases=1)
     with pytest.raises(ValueError, match="other settings"):
