@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from mpm.forward import Forward  # noqa: E402
 from mpm.loss import video_loss  # noqa: E402
-from mpm.params import Material, Setup  # noqa: E402
+from mpm.params import Setup  # noqa: E402
 from similarity.emulation import emulate  # noqa: E402
 from similarity.presets import get_preset  # noqa: E402
 from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
@@ -50,12 +50,12 @@ def main() -> None:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         sys.exit(2)
-    unknown = set(args.criteria.split(",")) - set(recs[0]["config"]["criteria"])
+    unknown = set(args.criteria.split(",")) - set(recs[0].config["criteria"])
     if unknown:
         print(f"error: --criteria {', '.join(sorted(unknown))}: not in the study "
-              f"({', '.join(recs[0]['config']['criteria'])})", file=sys.stderr)
+              f"({', '.join(recs[0].config['criteria'])})", file=sys.stderr)
         sys.exit(2)
-    coarse = get_preset(recs[0]["config"]["preset"])
+    coarse = get_preset(recs[0].config["preset"])
     fine = dataclasses.replace(coarse, cell_mm=args.cell_mm)
     forward = Forward(args.store, workers=args.workers)
     rows = []
@@ -63,14 +63,12 @@ def main() -> None:
     print(f"case criterion E_rel loss@{coarse.final.resolved().cell_mm:g}mm loss@{args.cell_mm:g}mm")
     try:
         for r in recs:
-            truth = Material(**r["truth"])
             for crit in args.criteria.split(","):
-                c = r["criteria"][crit]
-                setups = [Setup(*map(float, s.split("x"))) for s in (r["first_setup"], c["second_setup"])]
-                est = Material(**c["estimate"])
-                row = [c["e_rel"]] + [pair_loss(truth, est, setups, p, forward) for p in (coarse, fine)]
+                c = r.criteria[crit]
+                setups = [Setup(*map(float, s.split("x"))) for s in (r.first_setup, c.second_setup)]
+                row = [c.e_rel] + [pair_loss(r.truth, c.estimate, setups, p, forward) for p in (coarse, fine)]
                 rows.append(row)
-                print(f"{r['case']:4d} {crit:16s} {row[0]:.3f} {row[1]:.2e} {row[2]:.2e}", flush=True)
+                print(f"{r.case:4d} {crit:16s} {row[0]:.3f} {row[1]:.2e} {row[2]:.2e}", flush=True)
     finally:
         forward.close()
     a = np.array(rows)

@@ -107,3 +107,42 @@ def read_json(path):
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path} is not valid JSON: {exc}") from None
+
+
+def _to_json(value):
+    """``value`` with every object that has ``to_dict()`` replaced by its dictionary (inside dicts and lists too)."""
+    if hasattr(value, "to_dict"):
+        return value.to_dict()
+    if isinstance(value, dict):
+        return {k: _to_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_to_json(v) for v in value]
+    return value
+
+
+class JsonRecord:
+    """Mixin for a dataclass stored as a JSON object: its fields in order, by name.
+
+    ``OMIT_IF_NONE``: fields left out of the JSON while None (optional keys). ``READERS``: field name -> function
+    that turns the field's JSON value back into its type (e.g. ``Material``); other fields are taken as they are.
+    :meth:`from_dict` ignores keys that are not fields, so a file with more keys than the class still loads.
+    """
+
+    OMIT_IF_NONE: tuple = ()
+    READERS: dict = {}
+
+    def to_dict(self) -> dict:
+        from dataclasses import fields
+
+        return {f.name: _to_json(getattr(self, f.name)) for f in fields(self)
+                if not (f.name in self.OMIT_IF_NONE and getattr(self, f.name) is None)}
+
+    @classmethod
+    def from_dict(cls, data: dict):
+        from dataclasses import fields
+
+        kw = {f.name: data[f.name] for f in fields(cls) if f.name in data}
+        for name, read in cls.READERS.items():
+            if kw.get(name) is not None:
+                kw[name] = read(kw[name])
+        return cls(**kw)

@@ -1,7 +1,7 @@
 """Paper Fig. 10: relative error vs simulation count, one setup vs two setups, and the flow curves.
 
-Runs the section 7.1 emulation study (``studies.emulation.run_study``; resumable through the store) and plots,
-per case, E_rel (eq. of section 7.1) of the best candidate so far against the simulation count: black the
+Runs the cases of the section 7.1 emulation study (``studies.emulation.run_case``; resumable through the store)
+and plots, per case, E_rel (eq. of section 7.1) of the best candidate so far against the simulation count: black the
 single setup, orange the first setup of the two-setup run, blue its second stage; right, the flow curves
 (eq. 1) of the final estimates and the ground truth (dotted).
 Quick: one material, one run, 2 generations per stage on the 5 mm model; full: three random first setups of that
@@ -26,23 +26,23 @@ def quick_preset_name() -> str:
 
 
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
-    from similarity.space import e_rel
-    from studies.emulation import run_study, summary
+    from similarity.estimate import get_preset
+    from studies.emulation import planned_cases, run_case, summary
 
     context = context or Context()
     materials, runs, generations = SETTINGS[quick]
-    cases = run_study(materials=materials, runs=runs, preset=quick_preset_name(), generations=generations,
-                      forward=context.resolved_forward(out_dir))
+    forward, preset = context.resolved_forward(out_dir), get_preset(quick_preset_name())
+    cases = [run_case(c, preset=preset, generations=generations, forward=forward)
+             for c in planned_cases(None, materials=materials, runs=runs, seed=0)]
     write_json(Path(out_dir) / "fig10_emulation.json",
-               {"summary": summary(cases), "generations": generations, "cases": [c.to_dict() for c in cases]})
+               {"summary": summary(cases), "generations": generations, "cases": [c.case_dict() for c in cases]})
     plt = pyplot()
     fig, axes = plt.subplots(len(cases), 2, figsize=(10, 3.2 * len(cases)), dpi=90, squeeze=False)
     for (ax, ax_flow), c in zip(axes, cases):
-        curves = c.curves()
         for key, colour, label, lw in (("single", "k", "one setup", 2.5), ("first", "tab:orange", "setup 1", 1.5),
                                        ("second", "tab:blue", "setups 1+2", 1.5)):
-            if curves[key]:
-                x, y = zip(*curves[key])
+            if c.curves[key]:
+                x, y = zip(*c.curves[key])
                 ax.plot(x, y, color=colour, lw=lw, label=label, zorder=2 if key == "single" else 3)
         ax.axhline(GOOD, color="grey", ls=":", lw=1)
         ax.set_yscale("log")
@@ -50,17 +50,17 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
         ax.set_ylabel("E_rel", fontsize=8)
         t = c.truth
         ax.set_title(f"truth eta={t.eta:.3g}, n={t.n:.3g}, sigma_y={t.sigma_y:.3g}; setups "
-                     f"{' + '.join(c.double.setups)} mm", fontsize=8)
+                     f"{' + '.join(c.setups)} mm", fontsize=8)
         ax.legend(fontsize=7)
         ax.tick_params(labelsize=7)
         flow_curves(ax_flow, [
-            (f"one setup (E_rel {e_rel(t, c.single.material):.3f})", c.single.material, {"color": "k", "lw": 2}),
-            (f"two setups (E_rel {e_rel(t, c.double.material):.3f})", c.double.material,
+            (f"one setup (E_rel {c.single.e_rel:.3f})", c.single.estimate, {"color": "k", "lw": 2}),
+            (f"two setups (E_rel {c.two_setups.e_rel:.3f})", c.two_setups.estimate,
              {"color": "tab:blue", "lw": 1.5}),
             ("ground truth", t, {"color": "grey", "ls": ":", "lw": 2}),
         ])
         ax_flow.legend(fontsize=7, loc="upper left")
     s = summary(cases)
     fig.suptitle(f"{len(cases)} case(s), {generations} generations per stage: good (E_rel <= {GOOD}) with one setup "
-                 f"{s['good_single']}/{s['cases']}, with two setups {s['good_two_setups']}/{s['cases']}", fontsize=9)
+                 f"{s.good_single}/{s.cases}, with two setups {s.good_two_setups}/{s.cases}", fontsize=9)
     return [save_figure(fig, Path(out_dir) / "fig10_setups_error.png")]

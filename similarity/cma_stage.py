@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Callable, Sequence
 
 import cma
 import numpy as np
 
-from mpm.files import digest
+from mpm.files import JsonRecord, digest
 from mpm.forward import Forward, ForwardModel
 from mpm.params import Material
 from similarity.presets import setup_of
@@ -30,6 +30,26 @@ STATE_VERSION = 1  # of StageState; checkpoints of another version belong to ano
 
 
 @dataclass
+class Generation(JsonRecord):
+    """One generation of a stage, as its history records it (result.json writes it as an object)."""
+
+    generation: int  # CMA-ES iterations so far (all restarts)
+    simulations: int  # simulations of the stage so far
+    best_loss: float  # best loss of the stage so far
+    best_x: list[float] | None  # its candidate (normalised); None while every simulation failed
+    mean_x: list[float]  # the current run's mean
+    sigma: float  # the current run's step size
+    drawn: int  # candidate draws of the stage so far (its budget counts these)
+    restarts: int  # IPOP restarts so far
+    run_best: float  # best loss of the current run
+
+
+def _generations(history) -> list[Generation]:
+    """A history as :class:`Generation` values, also one of dicts (result.json, checkpoints before this type)."""
+    return [h if isinstance(h, Generation) else Generation.from_dict(h) for h in history]
+
+
+@dataclass
 class Stage:
     """Result of one CMA-ES stage (all setups so far, or the finishing stage)."""
 
@@ -42,7 +62,7 @@ class Stage:
     simulations: int
     generations: int  # budget spent, in generations of POPSIZE draws (what the progress bar counts)
     model: ForwardModel  # the stage's forward model, its solver defaults filled in
-    history: list[dict] = field(default_factory=list)  # per generation: simulations, best loss, best x, ...
+    history: list[Generation] = field(default_factory=list)  # per generation: simulations, best loss, best x, ...
     next_setup: str | None = None
     wall_seconds: float = 0.0
     archive: list[list[float]] = field(default_factory=list)  # every finite evaluation: [x0, x1, x2, loss]
@@ -57,11 +77,20 @@ class Stage:
         d.pop("archive")  # hundreds of rows; the history keeps the path
         return d
 
+    @classmethod
+    def from_dict(cls, data: dict) -> "Stage":
+        """A stage as result.json holds it (:meth:`to_dict`; its model also in the layout before the seam)."""
+        names = {f.name for f in fields(cls)} - {"material", "model", "history"}
+        return cls(**{k: data[k] for k in names if k in data}, material=Material(**data["material"]),
+                   model=ForwardModel.of_record(data), history=_generations(data.get("history", [])))
+
     def __setstate__(self, state: dict) -> None:
-        """Unpickle, also a stage checkpointed before the model was one field (its four loose fields)."""
+        """Unpickle, also a stage checkpointed before the model was one field (its four loose fields) or before
+        its history was typed (dicts)."""
         if "model" not in state:
             loose = {k: state.pop(k) for k in ("cell_mm", "ppc", "slip_length_m", "density_correction") if k in state}
             state["model"] = ForwardModel(**loose)
+        state["history"] = _generations(state.get("history", []))
         self.__dict__.update(state)
 
 
@@ -81,10 +110,15 @@ class StageState:
     restart_drawn: int = 0  # draws when the current run started
     run_best: float = np.inf  # best loss of the current run
     wall_seconds: float = 0.0
-    history: list[dict] = field(default_factory=list)
+    history: list[Generation] = field(default_factory=list)
     archive: list[list[float]] = field(default_factory=list)
     result: Stage | None = None
     version: int = STATE_VERSION
+
+    def __setstate__(self, state: dict) -> None:
+        """Unpickle, also a checkpoint written before the history was typed (dicts): it resumes."""
+        state["history"] = _generations(state.get("history", []))
+        self.__dict__.update(state)
 
     def offer(self, x: np.ndarray, loss: float) -> None:
         if loss < self.best_loss:
@@ -139,9 +173,9 @@ def _strategy(x0, sigma0: float, popsize: int, seed: int) -> cma.CMAEvolutionStr
 
 def _stalled(state: StageState) -> bool:
     """True when the current run's best loss has not improved over its last ``STALL_DRAWS`` draws."""
-    recent = [h for h in state.history if h["drawn"] > state.restart_drawn]
-    old = [h["run_best"] for h in recent if h["drawn"] <= state.drawn - STALL_DRAWS]
-    return bool(old) and not recent[-1]["run_best"] < old[-1]
+    recent = [h for h in state.history if h.drawn > state.restart_drawn]
+    old = [h.run_best for h in recent if h.drawn <= state.drawn - STALL_DRAWS]
+    return bool(old) and not recent[-1].run_best < old[-1]
 
 
 def _restart(state: StageState, x0, sigma0: float, seed: int) -> None:
@@ -180,12 +214,12 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
     state.generation += 1
     state.evaluations += evaluations
     state.simulations += evaluations * len(objective.experiments)
-    state.history.append({
-        "generation": state.generation, "simulations": state.simulations, "best_loss": state.best_loss,
-        "best_x": None if state.best_x is None else [float(v) for v in state.best_x],
-        "mean_x": [float(v) for v in es.mean], "sigma": float(es.sigma),
-        "drawn": state.drawn, "restarts": state.restarts, "run_best": state.run_best,
-    })
+    state.history.append(Generation(
+        generation=state.generation, simulations=state.simulations, best_loss=state.best_loss,
+        best_x=None if state.best_x is None else [float(v) for v in state.best_x],
+        mean_x=[float(v) for v in es.mean], sigma=float(es.sigma),
+        drawn=state.drawn, restarts=state.restarts, run_best=state.run_best,
+    ))
 
 
 def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int, generations: int, forward: Forward,

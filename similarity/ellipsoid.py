@@ -35,6 +35,12 @@ class Ellipsoid:
         return {"center": self.center.tolist(), "axes": self.axes.T.tolist(), "lengths": self.lengths.tolist(),
                 "level": self.level}
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "Ellipsoid":
+        """The inverse of :meth:`to_dict` (which writes the axes as rows)."""
+        return cls(np.asarray(d["center"], float), np.asarray(d["axes"], float).T, np.asarray(d["lengths"], float),
+                   float(d["level"]))
+
 
 def ellipsoid(center, cov, level: float = 0.9) -> Ellipsoid:
     """Credible ellipsoid of a Gaussian with covariance ``cov`` (normalised space) at ``level``."""

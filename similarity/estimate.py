@@ -16,7 +16,7 @@ from typing import Callable, Sequence
 
 from mpm.forward import Forward, ForwardModel
 from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
-from similarity.cma_stage import WARM_START_SPACING, Stage, run_stage, warm_start  # noqa: F401
+from similarity.cma_stage import WARM_START_SPACING, Generation, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
 from similarity.presets import PRESETS, Preset, get_preset, setup_of  # noqa: F401
 from similarity.space import LOWER, UPPER, center, denormalize, e_rel, normalize
@@ -201,5 +201,5 @@ def emulate_virheometry(truth: Material, first_setup: Setup, *, n_setups: int = 
 
 def e_rel_history(stage: Stage, truth: Material) -> list[tuple[int, float]]:
     """(simulation count, E_rel of the best candidate so far) per generation (Fig. 10)."""
-    return [(h["simulations"], e_rel(truth, Material.from_array(denormalize(h["best_x"]))))
-            for h in stage.history if h["best_x"] is not None]
+    return [(h.simulations, e_rel(truth, Material.from_array(denormalize(h.best_x))))
+            for h in stage.history if h.best_x is not None]

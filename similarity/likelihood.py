@@ -37,6 +37,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from mpm.files import JsonRecord
+
 
 MIN_COMPONENT_PX = 3
 METHODS = ("frames", "components", "autocorrelation")
@@ -79,7 +81,7 @@ def correlation_area(residual: np.ndarray) -> float:
 
 
 @dataclass(frozen=True)
-class NoiseScale:
+class NoiseScale(JsonRecord):
     """The estimated noise model of eq. (1) (module docstring); variances in loss units."""
 
     n_pixels: int  # pixels over all frames of all setups

@@ -23,7 +23,8 @@ import numpy as np
 from mpm.files import write_json
 from mpm.params import Material
 from similarity.mcmc import QUANTILES, Posterior, check_backend, sample
-from similarity.run_folder import Run, load_run, read_posterior, read_result  # noqa: F401 (re-exported)
+from similarity.posterior_summary import EmulatorSummary, PosteriorStats, PosteriorSummary, read_posterior  # noqa: F401
+from similarity.run_folder import Run, load_run, read_result  # noqa: F401 (re-exported)
 from similarity.space import denormalize, normalize
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
@@ -95,7 +96,7 @@ class Analysis:
     posterior: Posterior
     noise: object
     emulator: object
-    summary: dict
+    summary: PosteriorSummary
     frames: list
     log_prob: Callable[[np.ndarray], np.ndarray]  # the sampled log-posterior (normalised space, vectorised)
 
@@ -173,24 +174,15 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         if cut <= MAX_CUT or half_width >= 1.0:
             break
         say(f"{100 * cut:.1f} % of the posterior lies at an inner face of the emulator's box: growing it")
-    summary = {"estimate": run.estimate.to_dict(), "estimate_normalised": x_hat.tolist(),
-               "setups": [str(s) for s in run.setups], "noise": noise.to_dict(),
-               "emulator": validation.to_dict() | {"trust_region": [lo.tolist(), hi.tolist()],
-                                                   "half_width": half_width, "cut_fraction": cut,
-                                                   "roughness_std": emu.noise_std},
-               "posterior": post.summary()}
-    if run.truth is not None:
-        summary["truth"] = run.truth.to_dict()
-        summary["truth_normalised"] = normalize(run.truth.as_array()).tolist()
+    truth = run.truth
     # ellipsoids: posterior covariance and the Laplace approximation (finite-difference Hessian)
     ell = ellipsoid(post.mean, post.cov, 0.9)
-    summary["ellipsoid_posterior"] = ell.to_dict()
     try:
         step = max(1e-5, 0.5 * float(np.sqrt(np.min(np.diag(post.cov)))))
         h = fd_hessian(lambda x: -noise.log_likelihood(emu.predict(x)), post.mean, step)
-        summary["ellipsoid_laplace"] = ellipsoid(post.mean, np.linalg.inv(h), 0.9).to_dict()
+        laplace = ellipsoid(post.mean, np.linalg.inv(h), 0.9)
     except (ValueError, np.linalg.LinAlgError):
-        summary["ellipsoid_laplace"] = None
+        laplace = None
     m_mean = Material.from_array(denormalize(np.clip(post.mean, 0, 1)))
     normals = {}
     for s in run.setups:
@@ -199,27 +191,33 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
             normals[str(s)] = {"normal": q.tolist(), "alignment_thin_axis": alignment(ell.thin, q)}
         except ValueError:
             normals[str(s)] = None
-    summary["normals"] = normals
     # flow-curve band
     stress = np.array([Material.from_array(m).stress(FLOW_RATES) for m in post.si()[:: max(1, len(post.samples) // 2000)]])
-    summary["flow_band"] = {"shear_rate": FLOW_RATES.tolist(),
-                            **{f"{int(100 * p)}": np.quantile(stress, p, axis=0).tolist() for p in QUANTILES}}
+    band = {"shear_rate": FLOW_RATES.tolist(),
+            **{f"{int(100 * p)}": np.quantile(stress, p, axis=0).tolist() for p in QUANTILES}}
     # next setups by expected information gain (and by perpendicularity, for comparison)
+    eig_grid = None
     try:
         eig = rank_setups(m_mean, run.setups, criterion="eig", covariance=post.cov)
         order = np.argsort(-eig.score)[:10]
-        summary["eig_grid"] = eig.grid().tolist()
-        summary["next_setups_eig"] = [{"setup": f"{eig.width_mm[i]:g}x{eig.height_mm[i]:g}",
-                                       "eig_nats": float(eig.score[i])} for i in order]
+        eig_grid = eig.grid().tolist()
+        next_eig = [{"setup": f"{eig.width_mm[i]:g}x{eig.height_mm[i]:g}", "eig_nats": float(eig.score[i])}
+                    for i in order]
         perp = rank_setups(m_mean, run.setups)
         best, sp = perp.best()
-        summary["next_setup_perpendicular"] = {"setup": str(best), "score": sp,
-                                               "eig_nats": float(expected_information_gain(
-                                                   post.cov, eig.information[int(np.argmin(perp.score))]))
-                                               if len(perp) == len(eig) else None}
+        next_perp = {"setup": str(best), "score": sp,
+                     "eig_nats": float(expected_information_gain(post.cov, eig.information[int(np.argmin(perp.score))]))
+                     if len(perp) == len(eig) else None}
     except ValueError as exc:
-        summary["next_setups_eig"] = []
-        summary["next_setup_perpendicular"] = {"error": str(exc)}
+        next_eig, next_perp = [], {"error": str(exc)}
+    summary = PosteriorSummary(
+        estimate=run.estimate, estimate_normalised=x_hat.tolist(), setups=[str(s) for s in run.setups], noise=noise,
+        emulator=EmulatorSummary(**validation.to_dict(), trust_region=[lo.tolist(), hi.tolist()],
+                                 half_width=half_width, cut_fraction=cut, roughness_std=emu.noise_std),
+        posterior=PosteriorStats.from_dict(post.summary()),
+        truth=truth, truth_normalised=None if truth is None else normalize(truth.as_array()).tolist(),
+        ellipsoid_posterior=ell, ellipsoid_laplace=laplace, normals=normals, flow_band=band, eig_grid=eig_grid,
+        next_setups_eig=next_eig, next_setup_perpendicular=next_perp)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     write_json(run.folder / "posterior.json", summary)
     return Analysis(run, post, noise, emu, summary, frames, log_prob)

@@ -1,13 +1,11 @@
-"""A finished ``virheo estimate`` / ``virheo demo`` folder: its ``result.json``, its ``posterior.json``
-and the experiments it was fitted to (experiment folders, or emulated footage rebuilt from the store).
+"""A finished ``virheo estimate`` / ``virheo demo`` folder: its ``result.json`` and the experiments it was fitted
+to (experiment folders, or emulated footage rebuilt from the store); its ``posterior.json``:
+:mod:`similarity.posterior_summary`.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-
-import numpy as np
 
 from mpm.files import read_json
 from mpm.forward import Forward, ForwardModel
@@ -45,22 +43,6 @@ def read_result(folder) -> tuple[dict, Material]:
         return result, Material(float(est["eta"]), float(est["n"]), float(est["sigma_y"]))
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: bad estimate ({exc})") from None
-
-
-def read_posterior(folder) -> dict:
-    """``folder/posterior.json`` written by :func:`similarity.posterior.analyse` (``virheo report``)."""
-    path = Path(folder) / "posterior.json"
-    if not path.is_file():
-        raise ValueError(f"{folder}: no posterior.json; run `virheo report {folder}` first")
-    try:
-        s = json.loads(path.read_text())
-        cov = np.asarray(s["posterior"]["cov_normalised"], float)
-        Material(**s["posterior"]["mean"])
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: not a posterior summary ({exc})") from None
-    if cov.shape != (3, 3):
-        raise ValueError(f"{path}: covariance is not 3 x 3")
-    return s
 
 
 def model_of(result: dict) -> ForwardModel:

@@ -29,19 +29,19 @@ def _plt():
 
 def intervals_png(path, summary) -> Path:
     plt = _plt()
-    post = summary["posterior"]
+    quantiles, est, truth = summary.posterior.quantiles, summary.estimate, summary.truth
     fig, axes = plt.subplots(1, 3, figsize=(9, 2.4), dpi=110)
     for ax, name, label in zip(axes, NAMES, LABELS):
-        lo, med, hi = (post["quantiles"][k][name] for k in ("5", "50", "95"))
+        lo, med, hi = (getattr(quantiles[k], name) for k in ("5", "50", "95"))
         ax.plot([lo, hi], [0, 0], lw=6, color="tab:blue", alpha=0.5, label="90 % credible interval")
         ax.plot(med, 0, "o", color="tab:blue", label="posterior median")
-        ax.plot(summary["estimate"][name], 0, "kx", ms=10, mew=2, label="CMA-ES estimate")
-        if "truth" in summary:
-            ax.plot(summary["truth"][name], 0, "r*", ms=12, label="truth")
+        ax.plot(getattr(est, name), 0, "kx", ms=10, mew=2, label="CMA-ES estimate")
+        if truth is not None:
+            ax.plot(getattr(truth, name), 0, "r*", ms=12, label="truth")
         ax.set_yticks([])
         ax.set_xlabel(label)
         span = max(hi - lo, 1e-6)
-        xs = [lo, hi, summary["estimate"][name]] + ([summary["truth"][name]] if "truth" in summary else [])
+        xs = [lo, hi, getattr(est, name)] + ([getattr(truth, name)] if truth is not None else [])
         ax.set_xlim(min(xs) - 0.3 * span, max(xs) + 0.3 * span)
     axes[1].legend(fontsize=7, loc="lower center", bbox_to_anchor=(0.5, 1.02), ncol=4, frameon=False)
     return save_figure(fig, path)
@@ -50,7 +50,7 @@ def intervals_png(path, summary) -> Path:
 def corner_png(path, samples_si, summary) -> Path:
     plt = _plt()
     fig, axes = plt.subplots(3, 3, figsize=(6.5, 6.5), dpi=110)
-    truth = summary.get("truth")
+    truth, est = summary.truth, summary.estimate
     for i in range(3):
         for j in range(3):
             ax = axes[i, j]
@@ -60,35 +60,32 @@ def corner_png(path, samples_si, summary) -> Path:
             if i == j:
                 ax.hist(samples_si[:, i], bins=40, color="tab:blue", alpha=0.7)
                 for q in ("5", "95"):
-                    ax.axvline(summary["posterior"]["quantiles"][q][NAMES[i]], color="k", ls=":", lw=1)
+                    ax.axvline(getattr(summary.posterior.quantiles[q], NAMES[i]), color="k", ls=":", lw=1)
                 ax.set_yticks([])
             else:
                 ax.hist2d(samples_si[:, j], samples_si[:, i], bins=40, cmap="Blues")
-                ax.plot(summary["estimate"][NAMES[j]], summary["estimate"][NAMES[i]], "kx", ms=8, mew=2)
-                if truth:
-                    ax.plot(truth[NAMES[j]], truth[NAMES[i]], "r*", ms=10)
+                ax.plot(getattr(est, NAMES[j]), getattr(est, NAMES[i]), "kx", ms=8, mew=2)
+                if truth is not None:
+                    ax.plot(getattr(truth, NAMES[j]), getattr(truth, NAMES[i]), "r*", ms=10)
             if i == 2:
                 ax.set_xlabel(LABELS[j])
             if j == 0 and i > 0:
                 ax.set_ylabel(LABELS[i])
             ax.tick_params(labelsize=7)
-    fig.suptitle("posterior (x: CMA-ES estimate" + (", red star: truth)" if truth else ")"), fontsize=9)
+    fig.suptitle("posterior (x: CMA-ES estimate" + (", red star: truth)" if truth is not None else ")"), fontsize=9)
     return save_figure(fig, path)
 
 
 def flow_band_png(path, summary, rheometer=None) -> Path:
-    from mpm.params import Material
-
     plt = _plt()
-    band = summary["flow_band"]
+    band = summary.flow_band
     rate = np.asarray(band["shear_rate"])
     fig, ax = plt.subplots(figsize=(6, 4.3), dpi=110)
     ax.fill_between(rate, band["5"], band["95"], color="tab:blue", alpha=0.3, label="90 % posterior band")
     ax.loglog(rate, band["50"], color="tab:blue", lw=2, label="posterior median")
-    est = Material(**summary["estimate"])
-    ax.loglog(rate, np.maximum(est.stress(rate), 1e-6), "k--", lw=1.5, label="CMA-ES estimate")
-    if "truth" in summary:
-        ax.loglog(rate, np.maximum(Material(**summary["truth"]).stress(rate), 1e-6), "r:", lw=2, label="truth")
+    ax.loglog(rate, np.maximum(summary.estimate.stress(rate), 1e-6), "k--", lw=1.5, label="CMA-ES estimate")
+    if summary.truth is not None:
+        ax.loglog(rate, np.maximum(summary.truth.stress(rate), 1e-6), "r:", lw=2, label="truth")
     if rheometer is not None:
         ax.loglog(rheometer.shear_rate, rheometer.shear_stress, "o", ms=3, color="tab:orange",
                   label=f"rheometer ({rheometer.name})")
@@ -102,7 +99,7 @@ def flow_band_png(path, summary, rheometer=None) -> Path:
 
 def band_coverage(summary, curve, lo: float = 1.0, hi: float = 100.0) -> float:
     """Fraction of the rheometer points with lo <= rate <= hi that lie inside the 90 % band."""
-    band = summary["flow_band"]
+    band = summary.flow_band
     rate = np.log(np.asarray(band["shear_rate"]))
     mask = (curve.shear_rate >= lo) & (curve.shear_rate <= hi)
     if not mask.any():
@@ -130,21 +127,20 @@ def ellipsoids_png(path, summary, samples) -> Path:
     plt = _plt()
     c2 = chi2.ppf(0.9, 2)
     names = ("eta", "n", "sigma_y")
-    ep = summary["ellipsoid_posterior"]
-    mean = np.asarray(ep["center"])
+    ep = summary.ellipsoid_posterior
+    mean = ep.center
     cov = np.cov(samples, rowvar=False)
-    lap = summary.get("ellipsoid_laplace")
+    lap = summary.ellipsoid_laplace
     fig, axes = plt.subplots(1, 3, figsize=(10, 3.6), dpi=110)
-    scale = 2.0 * max(ep["lengths"])
+    scale = 2.0 * max(ep.lengths)
     for ax, (i, j) in zip(axes, ((0, 1), (0, 2), (1, 2))):
         ax.plot(samples[::20, i], samples[::20, j], ".", ms=1, color="tab:blue", alpha=0.3)
         _ellipse(ax, mean, cov, c2, i, j, color="tab:blue", lw=2, label="posterior 90 %")
-        if lap:
-            lam = np.asarray(lap["lengths"]) ** 2 / chi2.ppf(0.9, 3)
-            axes_l = np.asarray(lap["axes"]).T
-            _ellipse(ax, np.asarray(lap["center"]), axes_l @ np.diag(lam) @ axes_l.T, c2, i, j, color="k", ls="--",
+        if lap is not None:
+            lam = lap.lengths ** 2 / chi2.ppf(0.9, 3)
+            _ellipse(ax, lap.center, lap.axes @ np.diag(lam) @ lap.axes.T, c2, i, j, color="k", ls="--",
                      lw=1.2, label="Laplace 90 %")
-        for k, (setup, q) in enumerate((summary.get("normals") or {}).items()):
+        for k, (setup, q) in enumerate((summary.normals or {}).items()):
             if q is None:
                 continue
             v = np.asarray(q["normal"])
@@ -189,20 +185,20 @@ def overlays_png(path, simulated, captured, title: str) -> Path:
 
 def eig_map_png(path, summary) -> Path | None:
     plt = _plt()
-    rows = summary.get("eig_grid")
+    rows = summary.eig_grid
     if not rows:
         return None
     grid = np.asarray(rows, float)
     fig, ax = plt.subplots(figsize=(5.2, 4.5), dpi=110)
     im = ax.imshow(grid, origin="lower", extent=(19.5, 70.5, 19.5, 70.5), cmap="viridis")
     fig.colorbar(im, ax=ax, label="expected information gain [nats]")
-    for s in summary["setups"]:
+    for s in summary.setups:
         w, h = (float(v) for v in s.split("x"))
         ax.plot(w, h, "X", color="w", mec="k", ms=10)
-    if summary.get("next_setups_eig"):
-        w, h = (float(v) for v in summary["next_setups_eig"][0]["setup"].split("x"))
+    if summary.next_setups_eig:
+        w, h = (float(v) for v in summary.next_setups_eig[0]["setup"].split("x"))
         ax.plot(w, h, "r*", ms=14, mec="k", label="best by EIG")
-    perp = summary.get("next_setup_perpendicular") or {}
+    perp = summary.next_setup_perpendicular or {}
     if perp.get("setup"):
         w, h = (float(v) for v in perp["setup"].split("x"))
         ax.plot(w, h, "o", color="orange", mec="k", ms=8, label="most perpendicular (S_p)")
@@ -218,27 +214,28 @@ def _fmt(v) -> str:
 def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, coverage=None) -> Path:
     """index.html in ``out`` referring to the PNGs by relative name (all in ``out``)."""
     out = Path(out)
-    post = summary["posterior"]
+    post, truth = summary.posterior, summary.truth
     e = html.escape
     rows = []
     for name, plain in zip(NAMES, PLAIN):
-        cells = [plain, _fmt(summary["estimate"][name]), _fmt(post["mean"][name])]
-        cells += [_fmt(post["quantiles"][k][name]) for k in ("5", "50", "95")]
-        if "truth" in summary:
-            cells.append(_fmt(summary["truth"][name]))
+        cells = [plain, _fmt(getattr(summary.estimate, name)), _fmt(getattr(post.mean, name))]
+        cells += [_fmt(getattr(post.quantiles[k], name)) for k in ("5", "50", "95")]
+        if truth is not None:
+            cells.append(_fmt(getattr(truth, name)))
         rows.append("<tr>" + "".join(f"<td>{e(c)}</td>" for c in cells) + "</tr>")
-    head = ["parameter", "CMA-ES estimate", "posterior mean", "5 %", "50 %", "95 %"] + (["truth"] if "truth" in summary else [])
-    noise, emu = summary["noise"], summary["emulator"]
-    ell = summary["ellipsoid_posterior"]
+    head = ["parameter", "CMA-ES estimate", "posterior mean", "5 %", "50 %", "95 %"]
+    head += ["truth"] if truth is not None else []
+    noise, emu = summary.noise, summary.emulator
+    ell = summary.ellipsoid_posterior
     axes_rows = "".join(
         f"<tr><td>{k + 1}</td><td>({', '.join(f'{v:+.3f}' for v in ax)})</td><td>{ln:.4g}</td></tr>"
-        for k, (ax, ln) in enumerate(zip(ell["axes"], ell["lengths"])))
+        for k, (ax, ln) in enumerate(zip(ell.axes.T, ell.lengths)))
     normals = "".join(
         f"<li>setup {e(s)} mm: |cos(thin axis, loss normal)| = {q['alignment_thin_axis']:.3f}</li>"
-        for s, q in (summary.get("normals") or {}).items() if q)
+        for s, q in (summary.normals or {}).items() if q)
     nexts = "".join(f"<tr><td>{k + 1}</td><td>{e(r['setup'])}</td><td>{r['eig_nats']:.4f}</td></tr>"
-                    for k, r in enumerate(summary.get("next_setups_eig", [])))
-    perp = summary.get("next_setup_perpendicular") or {}
+                    for k, r in enumerate(summary.next_setups_eig or []))
+    perp = summary.next_setup_perpendicular or {}
     perp_line = (f"<p>Most perpendicular setup (section 6): <b>{e(perp['setup'])}</b> mm, S_p = {perp['score']:.4f}"
                  + (f", EIG {perp['eig_nats']:.4f} nats" if perp.get("eig_nats") is not None else "") + ".</p>"
                  if perp.get("setup") else "")
@@ -248,16 +245,16 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
                 f"100 1/s lie inside the 90 % band.</p>")
     img = lambda key, alt: f'<img src="{e(figures[key].name)}" alt="{e(alt)}">' if figures.get(key) else ""
     ovl = "".join(f'<h3>setup {e(s)} mm</h3><img src="{e(p.name)}" alt="overlays {e(s)}">' for s, p in overlays)
-    status = "converged" if post["converged"] else "NOT converged (increase the step budget)"
+    status = "converged" if post.converged else "NOT converged (increase the step budget)"
     page = f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>virheometry report</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:1em auto;color:#222}}
 table{{border-collapse:collapse;margin:.5em 0}}td,th{{border:1px solid #bbb;padding:2px 8px;text-align:right}}
 img{{max-width:100%;display:block;margin:.5em 0}}h2{{border-bottom:1px solid #ccc}}</style></head><body>
 <h1>Herschel-Bulkley parameters with uncertainty</h1>
-<p>Setups: {e(', '.join(summary['setups']))} mm. Posterior from emcee on an emulated likelihood; {status}:
-{post['iterations']} steps x {post['nwalkers']} walkers, integrated autocorrelation time
-{max(post['tau']):.1f} steps, effective sample size {post['ess']:.0f}.</p>
+<p>Setups: {e(', '.join(summary.setups))} mm. Posterior from emcee on an emulated likelihood; {status}:
+{post.iterations} steps x {post.nwalkers} walkers, integrated autocorrelation time
+{max(post.tau):.1f} steps, effective sample size {post.ess:.0f}.</p>
 <h2>Estimate and 90 % credible intervals</h2>
 <table><tr>{''.join(f'<th>{h}</th>' for h in head)}</tr>{''.join(rows)}</table>
 {img('intervals', 'credible intervals')}
@@ -271,11 +268,11 @@ img{{max-width:100%;display:block;margin:.5em 0}}h2{{border-bottom:1px solid #cc
 <h2>Next setup</h2>{img('eig', 'expected information gain map')}
 <table><tr><th>rank</th><th>setup [mm]</th><th>EIG [nats]</th></tr>{nexts}</table>{perp_line}
 <h2>Noise model and emulator</h2>
-<p>Noise: {noise['frames']} frames, N_eff = {noise['n_eff']:.0f} independent residuals, loss at the optimum
-{noise['loss_at_optimum']:.3g}, discretisation error {noise['discretisation']:.3g}, emulator error
-{noise['emulator']:.3g}; s<sup>2</sup> = {noise['variance']:.3g}, tau = {noise['precision']:.4g}.
-Emulator: {emu['n_train']} training and {emu['n_test']} held-out simulations, held-out RMSE {emu['rmse']:.3g}
-(largest error {emu['max_abs']:.3g}, loss range {emu['loss_range']:.3g}).</p>
+<p>Noise: {noise.frames} frames, N_eff = {noise.n_eff:.0f} independent residuals, loss at the optimum
+{noise.loss_at_optimum:.3g}, discretisation error {noise.discretisation:.3g}, emulator error
+{noise.emulator:.3g}; s<sup>2</sup> = {noise.variance:.3g}, tau = {noise.precision:.4g}.
+Emulator: {emu.n_train} training and {emu.n_test} held-out simulations, held-out RMSE {emu.rmse:.3g}
+(largest error {emu.max_abs:.3g}, loss range {emu.loss_range:.3g}).</p>
 </body></html>
 """
     path = out / "index.html"
@@ -304,5 +301,5 @@ def write_report(out, analysis, *, rheometer=None) -> Path:
         overlays.append((s, overlays_png(out / f"overlay_{s}.png", sim, e.frames, f"setup {s} mm")))
     coverage = band_coverage(summary, rheometer) if rheometer is not None else None
     if coverage is not None:
-        summary["rheometer_band_coverage"] = coverage
+        summary.rheometer_band_coverage = coverage
     return write_html(out, summary, figures, overlays=overlays, rheometer=rheometer, coverage=coverage)

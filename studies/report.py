@@ -42,44 +42,6 @@ def flow_curve_png(path, curves: Mapping[str, object], *, dashed: Mapping[str, o
     return save_figure(fig, path)
 
 
-def finished_cases(out, *patterns: str) -> list[dict]:
-    """The ``case.json`` records of a resumable per-case study under ``out`` (glob ``patterns``, in order).
-
-    ValueError when there are none, or when they were made with different configurations.
-    """
-    from mpm.files import read_json
-
-    found = [read_json(p) for pattern in patterns for p in sorted(Path(out).glob(pattern))]
-    if not found:
-        raise ValueError(f"{out}: no finished cases")
-    if len({str(r["config"]) for r in found}) > 1:
-        raise ValueError(f"{out} holds cases made with different settings; use one --out per configuration")
-    return found
-
-
-def finished_case(folder, config: dict) -> dict | None:
-    """The record ``folder/case.json`` of a finished case made with ``config``; None when there is none.
-
-    ValueError when it was made with another configuration.
-    """
-    from mpm.files import read_json
-
-    done = Path(folder) / "case.json"
-    if not done.is_file():
-        return None
-    rec = read_json(done)
-    if rec.get("config") != config:
-        raise ValueError(f"{done} was made with other settings ({rec.get('config')}); use another --out")
-    return rec
-
-
-def write_study(out, stem: str, result: dict, markdown: str) -> dict:
-    """``OUT/STEM.json`` (the result) and ``OUT/STEM.md`` (its tables) of a study."""
-    write_json(Path(out) / f"{stem}.json", result)
-    (Path(out) / f"{stem}.md").write_text(markdown)
-    return result
-
-
 def figure_path(path) -> Path:
     """The file a figure saved at ``path`` ends up in: ``.png`` is added when the name has no suffix."""
     path = Path(path)

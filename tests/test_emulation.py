@@ -29,11 +29,17 @@ def test_a_smaller_study_is_the_first_cases_of_a_larger_one():
         assert poisson_materials(1, seed=seed)[0].to_dict() == poisson_materials(6, seed=seed)[0].to_dict()
 
 
+def _study(out, log):
+    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate",
+               FAKE_FORWARD_LOG=str(log))
+    return subprocess.run([sys.executable, "-m", "studies.cli", "study", "emulation", "--materials", "2", "--runs", "1",
+                           "--generations", "3", "--workers", "0", "--quiet", "--out", str(out)], env=env,
+                          capture_output=True, text=True, timeout=300)
+
+
 def test_study_cli_one_vs_two_setups_at_equal_cost(tmp_path):
-    out = tmp_path / "emu"
-    env = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
-    proc = subprocess.run([sys.executable, "-m", "studies.cli", "study", "emulation", "--materials", "2", "--runs", "1",
-                           "--generations", "3", "--workers", "0", "--quiet", "--out", str(out)], env=env, capture_output=True, text=True, timeout=300)
+    out, log = tmp_path / "emu", tmp_path / "sims.log"
+    proc = _study(out, log)
     assert proc.returncode == 0, proc.stderr[-2000:]
     result = json.loads((out / "emulation.json").read_text())
     assert result["summary"]["cases"] == 2
@@ -49,4 +55,13 @@ def test_study_cli_one_vs_two_setups_at_equal_cost(tmp_path):
         plot = np.asarray(im.convert("L"))
     assert plot.shape[0] > 100 and plot.std() > 0  # a drawn figure, not a blank
     assert result["settings"]["preset"] == "demo"
+    # killed after the simulations of case 2 but before its record: re-run, nothing is simulated again
+    simulated = log.read_text().splitlines()
+    assert len(simulated) == len(set(simulated)) > 0
+    (out / "cases" / "case_01_00" / "case.json").unlink()
+    proc = _study(out, log)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert log.read_text().splitlines() == simulated
+    again = json.loads((out / "emulation.json").read_text())
+    assert again["cases"] == result["cases"] and again["summary"] == result["summary"]
     assert "Good (E_rel <= 0.1)" in (out / "emulation.md").read_text()

@@ -64,13 +64,13 @@ def test_same_seed_same_estimate_and_best_evaluated_candidate(tmp_path):
     best = min(
         np.mean([store_a.get_loss(fw.request(Material.from_array(denormalize(h)), e, DEMO.search), eid)
                  for e, eid in zip(exps, eids)])
-        for h in [gen["best_x"] for gen in a.stages[1].history] + [r[:3] for r in screened]
+        for h in [gen.best_x for gen in a.stages[1].history] + [r[:3] for r in screened]
     )
     assert a.loss == pytest.approx(best)
     assert a.stages[1].sigma0 == pytest.approx(a.stages[0].sigma0 * 2 / 3)
     assert a.next_setup == Setup(60, 25)
     # stage losses never increase along a stage's history; two setups pin the fake model down
-    hist = [h["best_loss"] for h in a.stages[1].history]
+    hist = [h.best_loss for h in a.stages[1].history]
     assert all(x >= y for x, y in zip(hist, hist[1:]))
     assert e_rel(TRUTH, a.material) < e_rel(TRUTH, E.center())
 
@@ -110,35 +110,35 @@ def _stage(exps, store, generations, progress=None):
 def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch):
     exps = _footage(Store(tmp_path / "truth"), setups=((30, 50),))
     plain = _stage(exps, Store(tmp_path / "plain"), 30)  # STALL_DRAWS = 20 generations: no restart on this toy
-    assert {h["restarts"] for h in plain.history} == {0}
+    assert {h.restarts for h in plain.history} == {0}
     monkeypatch.setattr(cma_stage, "STALL_DRAWS", 3 * 7)
     shown = []
     ref = _stage(exps, Store(tmp_path / "ref"), 30,
                  progress=lambda ev: shown.append(ev["generation"]) if ev["event"] == "generation" else None)
     # the progress bar, the stage record (result.json) and the budget agree; CMA-ES iterations are fewer
     assert shown[-1] == ref.generations == 30 and ref.cma_iterations == len(ref.history) < 30
-    draws = np.diff([0] + [h["drawn"] for h in ref.history])
-    restarts = [h["restarts"] for h in ref.history]
+    draws = np.diff([0] + [h.drawn for h in ref.history])
+    restarts = [h.restarts for h in ref.history]
     assert max(restarts) >= 1
     assert all(d == 7 * 2**r for d, r in zip(draws[:-1], restarts))  # IPOP: each restart doubles the population
     assert draws[-1] <= 7 * 2 ** restarts[-1]  # the last generation may be cut short by the budget ...
-    assert ref.history[-1]["drawn"] == ref.evaluations == 30 * 7  # ... which is spent exactly (no NaN here)
+    assert ref.history[-1].drawn == ref.evaluations == 30 * 7  # ... which is spent exactly (no NaN here)
     # until the first restart both runs are the same CMA-ES; the restarts can only improve on what it had found
     first = restarts.index(1)
-    assert [h["best_x"] for h in ref.history[:first]] == [h["best_x"] for h in plain.history[:first]]
-    assert ref.loss <= ref.history[first - 1]["best_loss"]
+    assert [h.best_x for h in ref.history[:first]] == [h.best_x for h in plain.history[:first]]
+    assert ref.loss <= ref.history[first - 1].best_loss
     # interrupted after a restart and run again: the same stage as the uninterrupted run
     store = Store(tmp_path / "killed")
 
     def stop(event):
-        if event["event"] == "generation" and event["generation"] * 7 > ref.history[first]["drawn"]:
+        if event["event"] == "generation" and event["generation"] * 7 > ref.history[first].drawn:
             raise _Interrupt
 
     with pytest.raises(_Interrupt):
         _stage(exps, store, 30, progress=stop)
     resumed = _stage(exps, store, 30)
     assert resumed.material == ref.material and resumed.loss == ref.loss
-    assert [h["drawn"] for h in resumed.history] == [h["drawn"] for h in ref.history]
+    assert [h.drawn for h in resumed.history] == [h.drawn for h in ref.history]
 
 
 _RUNNER = textwrap.dedent("""

@@ -48,9 +48,9 @@ def run(args) -> int:
         from similarity.posterior import read_posterior
 
         post = read_posterior(args.posterior)
-        material = Material(**post["posterior"]["mean"]).check_in_space()
-        done = [Setup.parse(text).check_in_space() for text in (args.done or post["setups"])]
-        covariance = post["posterior"]["cov_normalised"]
+        material = post.posterior.mean.check_in_space()
+        done = [Setup.parse(text).check_in_space() for text in (args.done or post.setups)]
+        covariance = post.posterior.cov_normalised
     elif args.material is None or not args.done:
         raise ValueError("give --material and --done, or --posterior RUN")
     else:

@@ -54,15 +54,16 @@ def run(args: argparse.Namespace) -> int:
                            discretisation=not args.no_discretisation, noise_count=args.noise_count,
                            progress=progress)
     page = write_report(Path(args.out) if args.out else folder / "report", analysis, rheometer=curve)
-    post = analysis.summary["posterior"]
-    q5, q95 = post["quantiles"]["5"], post["quantiles"]["95"]
+    summary = analysis.summary
+    post = summary.posterior
+    q5, q95 = post.quantiles["5"], post.quantiles["95"]
     print("posterior 90 % intervals: " + ", ".join(
-        f"{k} {q5[k]:.4g}..{q95[k]:.4g}" for k in ("eta", "n", "sigma_y")) + " (Pa s^n, -, Pa)")
-    print(f"effective samples {post['ess']:.0f}, {'converged' if post['converged'] else 'NOT converged'}")
-    nxt = analysis.summary.get("next_setups_eig") or []
+        f"{k} {getattr(q5, k):.4g}..{getattr(q95, k):.4g}" for k in ("eta", "n", "sigma_y")) + " (Pa s^n, -, Pa)")
+    print(f"effective samples {post.ess:.0f}, {'converged' if post.converged else 'NOT converged'}")
+    nxt = summary.next_setups_eig
     if nxt:
         print(f"next setup by expected information gain: {nxt[0]['setup']} mm ({nxt[0]['eig_nats']:.3f} nats)")
-    if "rheometer_band_coverage" in analysis.summary:
-        print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * analysis.summary['rheometer_band_coverage']:.0f} %")
+    if summary.rheometer_band_coverage is not None:
+        print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * summary.rheometer_band_coverage:.0f} %")
     print(f"report: {page}")
     return 0

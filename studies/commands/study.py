@@ -29,16 +29,15 @@ def register(subparsers) -> None:
 
 
 def run_emulation(args: argparse.Namespace) -> int:
-    from studies.emulation import timed_study
+    from studies.emulation import run_study
 
     for name in ("materials", "runs"):
         if getattr(args, name) < 1:
             raise ValueError(f"--{name} {getattr(args, name)} must be >= 1")
     check_run_options(args)
     with open_run(args) as run:
-        result = timed_study(run.out, materials=args.materials, runs=args.runs, preset=args.preset,
-                             generations=args.generations, seed=args.seed, forward=run.forward,
-                             progress=run.progress)
+        result = run_study(run.out, materials=args.materials, runs=args.runs, preset=args.preset,
+                           generations=args.generations, seed=args.seed, forward=run.forward, progress=run.progress)
     s = result["summary"]
     print((run.out / "emulation.md").read_text())
     print(f"good: one setup {s['good_single']}/{s['cases']}, two setups {s['good_two_setups']}/{s['cases']}; "

@@ -1,0 +1,104 @@
+"""The posterior summary of a run (``posterior.json``, written by :func:`similarity.posterior.analyse`) as typed
+values, and reading it back.
+
+The JSON is each dataclass's fields in order, the nested values as their own ``to_dict`` writes them: the file
+:func:`similarity.posterior.analyse` wrote before these types existed has the same layout, so it loads too.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mpm.files import JsonRecord
+from mpm.params import Material
+from similarity.ellipsoid import Ellipsoid
+from similarity.likelihood import NoiseScale
+
+
+def _material(d: dict) -> Material:
+    return Material(**d)
+
+
+@dataclass(kw_only=True)
+class PosteriorStats(JsonRecord):
+    """The emcee posterior in numbers (:meth:`similarity.mcmc.Posterior.summary`): SI mean and quantiles,
+    normalised mean and covariance, and the sampler's convergence."""
+
+    mean: Material
+    quantiles: dict  # "5", "50", "95" -> Material
+    mean_normalised: list
+    cov_normalised: list  # 3 x 3
+    ess: float  # effective sample size
+    tau: list  # integrated autocorrelation time per parameter, steps
+    iterations: int
+    nwalkers: int
+    burn: int
+    converged: bool
+    acceptance: float
+    wall_seconds: float
+
+    READERS = {"mean": _material, "quantiles": lambda d: {k: _material(v) for k, v in d.items()}}
+
+    @property
+    def cov(self) -> np.ndarray:
+        return np.asarray(self.cov_normalised, float)
+
+
+@dataclass(kw_only=True)
+class EmulatorSummary(JsonRecord):
+    """The loss emulator the posterior was sampled on: its held-out error and its trust region."""
+
+    n_train: int
+    n_test: int
+    rmse: float  # held-out RMSE, loss units
+    max_abs: float
+    loss_range: float
+    trust_region: list  # [lo, hi], normalised corners of the box the prior is cut to
+    half_width: float | None = None  # of that box around the estimate, after growing it (None: older files)
+    cut_fraction: float | None = None  # posterior fraction at an inner face of the box (None: older files)
+    roughness_std: float
+
+
+@dataclass(kw_only=True)
+class PosteriorSummary(JsonRecord):
+    """What ``posterior.json`` holds."""
+
+    estimate: Material  # the CMA-ES estimate
+    estimate_normalised: list
+    setups: list  # "WxH" of the run's experiments
+    noise: NoiseScale
+    emulator: EmulatorSummary
+    posterior: PosteriorStats
+    truth: Material | None = None  # emulated footage: the ground truth
+    truth_normalised: list | None = None
+    ellipsoid_posterior: Ellipsoid  # 90 % ellipsoid of the samples' covariance
+    ellipsoid_laplace: Ellipsoid | None  # 90 % Laplace ellipsoid (FD Hessian of the emulated log-likelihood)
+    normals: dict  # setup -> {"normal", "alignment_thin_axis"} or None (no Poiseuille flow)
+    flow_band: dict  # shear_rate, and the stress quantiles "5", "50", "95" per rate
+    eig_grid: list | None = None  # EIG [nats] over the setup grid (rows: heights)
+    next_setups_eig: list  # the ten best next setups: {"setup", "eig_nats"}
+    next_setup_perpendicular: dict  # {"setup", "score", "eig_nats"}, or {"error"}
+    rheometer_band_coverage: float | None = None  # set by the HTML report when given a rheometer curve
+
+    OMIT_IF_NONE = ("truth", "truth_normalised", "eig_grid", "rheometer_band_coverage")
+    READERS = {"estimate": _material, "truth": _material, "noise": NoiseScale.from_dict,
+               "emulator": EmulatorSummary.from_dict, "posterior": PosteriorStats.from_dict,
+               "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict}
+
+
+def read_posterior(folder) -> PosteriorSummary:
+    """``folder/posterior.json`` written by :func:`similarity.posterior.analyse` (``virheo report``)."""
+    path = Path(folder) / "posterior.json"
+    if not path.is_file():
+        raise ValueError(f"{folder}: no posterior.json; run `virheo report {folder}` first")
+    try:
+        s = PosteriorSummary.from_dict(json.loads(path.read_text()))
+        cov = s.posterior.cov
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ValueError(f"{path}: not a posterior summary ({exc})") from None
+    if cov.shape != (3, 3):
+        raise ValueError(f"{path}: covariance is not 3 x 3")
+    return s
