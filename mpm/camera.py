@@ -32,12 +32,16 @@ class CameraXMLWarning(UserWarning):
     """A camera_params.xml that had to be repaired while reading (e.g. a missing opening tag)."""
 
 
+# the render window the camera XML describes, where it does not say (its intrinsics are in these pixels); not
+# the working image size of the silhouettes (mpm.params.WORKING_SIZE), though today both are 960 x 540
+XML_WINDOW_SIZE = (960, 540)
+
 @dataclass(frozen=True)
 class Camera:
     eyepos_m: tuple[float, float, float]
     quat: tuple[float, float, float, float]  # (w, x, y, z), unit, simulation (OpenGL) convention
     fov_deg: float = 36.17541  # vertical
-    window_size: tuple[int, int] = (960, 540)  # (width, height) of the render window in the XML
+    window_size: tuple[int, int] = XML_WINDOW_SIZE  # (width, height) of the render window in the XML
 
     def __post_init__(self):
         eye = tuple(float(v) for v in self.eyepos_m)
@@ -65,7 +69,7 @@ class Camera:
         """A plausible camera for emulated experiments: in front of and above the box, pitched 30 deg down."""
         pitch = math.radians(-30.0)  # rotation about +x
         return cls(eyepos_m=(0.09, 0.135, 0.27), quat=(math.cos(pitch / 2), math.sin(pitch / 2), 0.0, 0.0),
-                   fov_deg=36.17541, window_size=(960, 540))
+                   fov_deg=36.17541, window_size=XML_WINDOW_SIZE)
 
     @classmethod
     def from_xml(cls, path) -> "Camera":
@@ -84,7 +88,7 @@ class Camera:
     def from_dict(cls, d: dict) -> "Camera":
         try:
             return cls(eyepos_m=tuple(d["eyepos_m"]), quat=tuple(d["quat"]), fov_deg=d.get("fov_deg", 36.17541),
-                       window_size=tuple(d.get("window_size", (960, 540))))
+                       window_size=tuple(d.get("window_size", XML_WINDOW_SIZE)))
         except (KeyError, TypeError) as exc:
             raise ValueError(f"not a camera dictionary: {exc}") from None
 
@@ -201,7 +205,7 @@ def read_xml(path) -> tuple[Camera, list[str]]:
     eye_cm = _numbers(attrs, "eyepos", 3, where)
     quat = _numbers(attrs, "quat", 4, where)
     fov = _numbers(attrs, "fov", 1, where)[0] if "fov" in attrs else 36.17541
-    win = _numbers(attrs, "window_size", 2, where) if "window_size" in attrs else (960, 540)
+    win = _numbers(attrs, "window_size", 2, where) if "window_size" in attrs else XML_WINDOW_SIZE
     try:
         camera = Camera(eyepos_m=tuple(0.01 * v for v in eye_cm), quat=quat, fov_deg=fov,
                         window_size=(int(round(win[0])), int(round(win[1]))))
