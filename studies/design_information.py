@@ -9,8 +9,10 @@ Materials: a scrambled Sobol design over 5..95 % of the normalised space with on
    what every criterion sees;
 2. **each criterion's pick** over the full 51 x 51 grid from that estimate: ``eig`` (expected information gain
    under stage 1's archive belief, published Theta map), ``perpendicularity-fitted`` and
-   ``perpendicularity-reference`` (section 6 with our fitted and the published Theta map), ``random``; a criterion
-   that cannot rank (Theta's plane-Poiseuille model does not flow) takes the random pick, and the record says so;
+   ``perpendicularity-reference`` (section 6 with our fitted and the published Theta map), and two baselines that
+   `virheo design` does not offer: ``random`` and ``largest`` (the 70 x 70 mm box, predicting by the area W x H);
+   a criterion that cannot rank (Theta's plane-Poiseuille model does not flow) takes the random pick, and the
+   record says so;
 3. **candidates**: ``candidates`` seeded random setups (distinct, other than the first) plus every pick;
 4. **realised information** of each candidate at the true material on emulated footage of the preset's final
    model: the PSD-projected FD Hessians at the pinned step, gain = log det(H_1 + H_c + eps I) - log det(H_1 + eps I)
@@ -28,7 +30,9 @@ against the realised gain.
 
 Every simulation goes through the store, every finished material is kept in ``cases/case_XX/case.json``, every
 map and posterior check in its own JSON, so a killed study resumes where it stopped.  Writes
-``design_information.json``, ``design_information.md``, ``predicted_vs_realised.png``, ``maps.png``.
+``design_information.json``, ``design_information.md``, ``predicted_vs_realised.png``, ``maps.png`` and
+``design_validation.json``: the held-out figures that `virheo design` prints, shipped as
+``studies/data/design_validation.json``.
 """
 from __future__ import annotations
 
@@ -42,14 +46,16 @@ from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity import information as I
 from studies.report import finished_case, finished_cases, save_figure, write_json, write_study
 
-# name -> (criterion of similarity.design.rank_setups, Theta map); "random" has no ranking
+# name -> (criterion of similarity.design.rank_setups, Theta map); the baselines "random" and "largest" (the
+# largest box other than the first, ranking setups by their area W x H) are not offered by `virheo design`
 CRITERIA = {"eig": ("eig", "reference"), "perpendicularity-fitted": ("perpendicularity", "fitted"),
-            "perpendicularity-reference": ("perpendicularity", "reference"), "random": None}
+            "perpendicularity-reference": ("perpendicularity", "reference"), "random": None, "largest": None}
+LARGEST = Setup(float(SETUP_RANGE_MM[1]), float(SETUP_RANGE_MM[1]))
 DEFAULT_CRITERION = "perpendicularity-reference"  # what `virheo design` uses without options
 WITHIN = 0.1  # "within 10 % of the best candidate": normalised score >= 1 - WITHIN
 SUMMARY_FILE = Path(__file__).resolve().parent / "data" / "design_validation.json"
 COLOURS = {"eig": "tab:red", "perpendicularity-fitted": "tab:green", "perpendicularity-reference": "tab:blue",
-           "random": "0.45"}
+           "random": "0.45", "largest": "tab:orange"}
 
 
 def case_seed(seed: int, index: int) -> int:
@@ -93,8 +99,16 @@ def _rank(name, estimate, first, covariance, thetas):
         return None, str(exc).splitlines()[0]
 
 
-def _predicted(ranking, setups) -> list:
-    """The ranking's predicted information (higher = better) of each setup; None where it has none."""
+def _largest(first: Setup) -> Setup:
+    """The baseline "largest": the 70 x 70 mm box, or 70 x 69 mm when that was the first."""
+    return LARGEST if str(first) != str(LARGEST) else Setup(LARGEST.width_mm, LARGEST.height_mm - 1.0)
+
+
+def _predicted(ranking, setups, name: str = "") -> list:
+    """The ranking's predicted information (higher = better) of each setup; None where it has none ("largest":
+    the setup's area)."""
+    if name == "largest":
+        return [s.width_mm * s.height_mm for s in setups]
     if ranking is None:
         return [None] * len(setups)
     index = {(float(w), float(h)): k for k, (w, h) in enumerate(zip(ranking.width_mm, ranking.height_mm))}
@@ -167,7 +181,8 @@ def run_case(folder, index: int, truth: Material, first: Setup, *, config: dict,
     rankings, picks, fallbacks = {}, {}, {}
     for name in config["criteria"]:
         rankings[name], why = _rank(name, est.material, first, covariance, thetas)
-        picks[name] = rankings[name].best()[0] if rankings[name] is not None else random_pick
+        picks[name] = (rankings[name].best()[0] if rankings[name] is not None
+                       else _largest(first) if name == "largest" else random_pick)
         if why is not None:
             fallbacks[name] = why
     seeded = seeded_candidates(config["candidates"], first, config["seed"], index)
@@ -190,7 +205,7 @@ def run_case(folder, index: int, truth: Material, first: Setup, *, config: dict,
         "hessian_first": hessians[0].tolist(), "hessians": [None if h is None else h.tolist() for h in hessians[1:]],
         **{m: _listed(gains(hessians[0], hessians[1:], m)) for m in MEASURES},
         "picks": {k: str(v) for k, v in picks.items()}, "fallbacks": fallbacks,
-        "predicted": {k: _predicted(rankings[k], cands) for k in config["criteria"]},
+        "predicted": {k: _predicted(rankings[k], cands, k) for k in config["criteria"]},
         "wall_seconds": time.perf_counter() - t0,
     }
     folder.mkdir(parents=True, exist_ok=True)
@@ -246,7 +261,7 @@ def summary(recs: list[dict]) -> dict:
                         "held_out": _group(held, names, measure) if held else {}}
     seeded_median = [float(np.nanmedian(case_gains(r)[:r["seeded"]])) for r in held]
     out["median_gain_seeded"] = float(np.median(seeded_median)) if held else None
-    ranked = [n for n in names if CRITERIA[n] is not None]
+    ranked = [n for n in names if CRITERIA[n] is not None]  # what `virheo design` offers
     if sel:
         med = {n: out["gain"]["selection"][n]["median_score"] for n in ranked}
         out["recommended"] = max(ranked, key=lambda n: -np.inf if med[n] is None else med[n])
@@ -294,7 +309,8 @@ def validation(criterion: str, theta: str, path=SUMMARY_FILE) -> dict | None:
 def reliability_line(v: dict | None) -> str:
     """One line for users: how reliable the criterion proved, or "not validated"."""
     if v is None:
-        return "reliability: not validated (only the packaged Theta maps were checked by virheo study design-information)"
+        return ("reliability: not validated (virheo study design-information checked EIG with the published Theta map "
+                "and perpendicularity with the published and the fitted one)")
     line = (f"reliability: within {100 * v['within_fraction']:.0f} % of the best candidate in {v['within']} of "
             f"{v['materials']} validation materials, better than the candidates' mean in {v['beats_mean']} of "
             f"{v['materials']} (median normalised score {v['median_score']:.2f})")
@@ -338,9 +354,10 @@ def posterior_volume(out, rec: dict, *, forward, points: int = 40, half_width: f
                      max_steps: int = 6000) -> dict:
     """For every candidate of a material: the log-volume 1/2 log det(cov) of the emcee posterior (normalised space)
     of the two-setup footage (first setup + candidate), the loss emulated (:class:`surrogate.emulator.LossEmulator`)
-    from ``points`` space-filling simulations in the box truth +- ``half_width``; eq. (1) with tau for one residual
-    per frame and s^2 = the stage-1 estimate's loss (the misfit a user saw after setup 1), the same for every
-    candidate.  Kept in ``posterior_check/check_XX.json``."""
+    from ``points`` space-filling simulations in the box truth +- ``half_width`` (the prior, cut to that box);
+    eq. (1) of :mod:`similarity.likelihood` with one residual per frame and s^2 = the stage-1 estimate's loss (the
+    misfit a user saw after setup 1) + the emulators' mean held-out RMSE, one tau for every candidate of the
+    material.  Kept in ``posterior_check/check_XX.json``."""
     from mpm.files import read_json
     from similarity.belief import frames_precision
     from similarity.emulation import emulate
@@ -363,14 +380,18 @@ def posterior_volume(out, rec: dict, *, forward, points: int = 40, half_width: f
     setups = [Setup.parse(rec["first_setup"])] + [Setup.parse(s) for s in rec["candidates"]]
     shots = emulate(truth, setups, density=DENSITY, preset=preset, forward=forward)
     losses = forward.losses(mats, shots, preset.final)  # (points + 1, setups)
-    tau = frames_precision(max(rec["stage_1"]["loss"], 1e-6), 2 * rec["frames_per_setup"])
-    lo, hi = box(u, half_width)
-    logvol = []
+    test = np.zeros(len(X), bool)
+    test[np.random.default_rng(rec["case"]).choice(len(X), size=len(X) // 5, replace=False)] = True
+    emus, rmse = [], []
     for k in range(1, len(setups)):
         y = losses[:, [0, k]].mean(axis=1)
         ok = np.isfinite(y)
-        emu = LossEmulator(seed=0).fit(X[ok], y[ok])
-
+        rmse.append(LossEmulator(seed=0).validate(X[ok & ~test], y[ok & ~test], X[ok & test], y[ok & test]).rmse)
+        emus.append(LossEmulator(seed=0).fit(X[ok], y[ok]))
+    tau = frames_precision(rec["stage_1"]["loss"] + float(np.mean(rmse)), 2 * rec["frames_per_setup"])
+    lo, hi = box(u, half_width)
+    logvol = []
+    for emu in emus:
         def log_prob(x, emu=emu):
             x = np.atleast_2d(x)
             inside = np.all((x >= lo) & (x <= hi), axis=1)
@@ -382,7 +403,7 @@ def posterior_volume(out, rec: dict, *, forward, points: int = 40, half_width: f
         post = sample(log_prob, u, seed=0, min_ess=min_ess, max_steps=max_steps)
         logvol.append(0.5 * float(np.linalg.slogdet(post.cov)[1]))
     c = {"case": rec["case"], "config": cfg, "points": points, "half_width": half_width, "tau": tau,
-         "candidates": rec["candidates"], "log_volume": logvol}
+         "emulator_rmse": rmse, "candidates": rec["candidates"], "log_volume": logvol}
     write_json(path, c)
     return c
 
@@ -486,7 +507,7 @@ def plot_predicted(path, recs: list[dict]) -> Path:
     import matplotlib.pyplot as plt
     from scipy.stats import rankdata
 
-    names = [n for n in recs[0]["config"]["criteria"] if CRITERIA[n] is not None]
+    names = [n for n in recs[0]["config"]["criteria"] if n != "random"]
     fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names), 3.4), dpi=100, squeeze=False)
     for ax, n in zip(axes[0], names):
         xs, ys = [], []
@@ -550,6 +571,9 @@ def write(out, *, wall_seconds: float | None = None) -> dict:
     if maps:
         plot_maps(out / "maps.png", maps, recs)
     checks = [c | {"spearman": volume_agreement(c, recs[c["case"]])} for c in checks]
-    result = {"config": recs[0]["config"], "summary": summ, "shipped": shipped_summary(summ, recs[0]["config"]),
+    shipped = shipped_summary(summ, recs[0]["config"]) if summ["held_out"] else None
+    if shipped:  # studies/data/design_validation.json is this file of the documented run
+        write_json(out / "design_validation.json", shipped)
+    result = {"config": recs[0]["config"], "summary": summ, "shipped": shipped,
               "posterior_check": checks, "wall_seconds": wall_seconds, "cases": recs}
     return write_study(out, "design_information", result, table_markdown(recs, summ, checks))
