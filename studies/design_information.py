@@ -22,7 +22,7 @@ Materials: a scrambled Sobol design over 5..95 % of the normalised space with on
    the realised gains (``random`` predicts nothing).
 
 The first ``materials - held_out`` materials are the *selection* set: the recommended criterion is the one with
-the largest median normalised score there.  The last ``held_out`` materials are reported apart: they decide the
+the largest median normalised score there, if positive (else none).  The last ``held_out`` materials are reported apart: they decide the
 verdict.  Two further parts, optional: a Fig. 10-style **map** of realised information over a coarse grid of
 setups for the first materials (``maps``), and a **posterior check** (``posterior_check`` materials): for every
 candidate, the volume of an emcee posterior (eq. 1 of :mod:`similarity.likelihood` on an emulated two-setup loss)
@@ -262,14 +262,17 @@ def summary(recs: list[dict]) -> dict:
     seeded_median = [float(np.nanmedian(case_gains(r)[:r["seeded"]])) for r in held]
     out["median_gain_seeded"] = float(np.median(seeded_median)) if held else None
     ranked = [n for n in names if CRITERIA[n] is not None]  # what `virheo design` offers
+    out["recommended"] = None  # none of the criteria beats the candidate mean on the selection materials
     if sel:
         med = {n: out["gain"]["selection"][n]["median_score"] for n in ranked}
-        out["recommended"] = max(ranked, key=lambda n: -np.inf if med[n] is None else med[n])
-    else:
-        out["recommended"] = DEFAULT_CRITERION
+        best = max(ranked, key=lambda n: -np.inf if med[n] is None else med[n])
+        if med[best] is not None and med[best] > 0:
+            out["recommended"] = best
     if held:
         h = out["gain"]["held_out"]
         for key, name in (("default", DEFAULT_CRITERION), ("recommended", out["recommended"])):
+            if name is None:
+                continue
             v = h[name]
             out[f"verdict_{key}"] = {
                 "criterion": name, "beats_mean": f"{v['beats_mean']}/{v['materials']}", "sign_test_p": v["sign_test_p"],
@@ -303,11 +306,11 @@ def validation(criterion: str, theta: str, path=SUMMARY_FILE) -> dict | None:
     if name not in data["criteria"]:
         return None
     return {"name": name, **data["criteria"][name], "recommended": data["recommended"], "within_fraction": data["within"],
-            "median_gain_seeded": data["median_gain_seeded"]}
+            "median_gain_seeded": data["median_gain_seeded"], "largest": data["criteria"].get("largest")}
 
 
 def reliability_line(v: dict | None) -> str:
-    """One line for users: how reliable the criterion proved, or "not validated"."""
+    """How reliable the criterion proved, for users (a second line says when it proved weak), or "not validated"."""
     if v is None:
         return ("reliability: not validated (virheo study design-information checked EIG with the published Theta map "
                 "and perpendicularity with the published and the fitted one)")
@@ -315,7 +318,14 @@ def reliability_line(v: dict | None) -> str:
             f"{v['materials']} validation materials, better than the candidates' mean in {v['beats_mean']} of "
             f"{v['materials']} (median normalised score {v['median_score']:.2f})")
     if v["sign_test_p"] >= 0.05:
-        line += "; the choice of setup matters little (not better than a random setup at p < 0.05)"
+        worse = v["median_score"] is not None and v["median_score"] < 0
+        line += (f"\n  weak: this criterion did not beat the average random setup (sign test p = {v['sign_test_p']:.2g})"
+                 + ("; its picks realised less information than a random setup, so treat the proposal as a hint on "
+                    "the direction only" if worse else ", so the choice of setup matters little"))
+        big = v.get("largest")
+        if big:
+            line += (f"; larger boxes realised more: {LARGEST} mm came within {100 * v['within_fraction']:.0f} % of the "
+                     f"best candidate in {big['within']} of {big['materials']}")
     return line
 
 
@@ -488,7 +498,8 @@ def table_markdown(recs: list[dict], summ: dict, checks: list[dict]) -> str:
                 lines.append(f"| {n} | {v['beats_mean']}/{v['materials']} | {_fmt(v['sign_test_p'], '.3g')} | "
                              f"{_fmt(v['median_score'])} | {v['within']}/{v['materials']} | "
                              f"{_fmt(v['median_spearman'])} |")
-    lines += ["", f"Recommended on the selection materials: {summ['recommended']}."]
+    lines += ["", "Recommended on the selection materials (the largest positive median normalised score of the criteria "
+              f"`virheo design` offers): {summ['recommended'] or 'none, no criterion beats the candidate mean'}."]
     if checks:
         lines += ["", "Posterior check (Spearman between -log posterior volume and the realised gain, per material):",
                   "", "| material | candidates | " + " | ".join(MEASURES) + " |", "|---:|---:|" + "---:|" * len(MEASURES)]
@@ -537,7 +548,7 @@ def plot_maps(path, maps: list[dict], recs: list[dict]) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, len(maps), figsize=(4.6 * len(maps), 4.0), dpi=100, squeeze=False)
+    fig, axes = plt.subplots(1, len(maps), figsize=(4.6 * len(maps), 4.6), dpi=100, squeeze=False)
     for ax, m in zip(axes[0], maps):
         r = recs[m["case"]]
         s = np.array(m["sizes_mm"])
@@ -547,14 +558,15 @@ def plot_maps(path, maps: list[dict], recs: list[dict]) -> Path:
         fig.colorbar(im, ax=ax, label="realised gain log det")
         f = Setup.parse(r["first_setup"])
         ax.plot(f.width_mm, f.height_mm, "X", color="w", mec="k", ms=11, label="setup 1")
-        for n, pick in r["picks"].items():
+        for k, (n, pick) in enumerate(r["picks"].items()):  # shrinking markers: picks that coincide stay visible
             p = Setup.parse(pick)
-            ax.plot(p.width_mm, p.height_mm, "o", color=COLOURS.get(n), mec="k", ms=8, label=n)
+            ax.plot(p.width_mm, p.height_mm, "o", color=COLOURS.get(n), mec="k", ms=14 - 2.5 * k, label=n,
+                    clip_on=False)
         t = r["truth"]
         ax.set(xlabel="width W [mm]", ylabel="height H [mm]",
                title=f"eta={t['eta']:.3g}, n={t['n']:.3g}, sigma_y={t['sigma_y']:.3g}")
         ax.title.set_fontsize(8)
-        ax.legend(fontsize=6, loc="upper right")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=3, frameon=False)
     return save_figure(fig, path)
 
 
