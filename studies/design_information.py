@@ -111,11 +111,9 @@ def _predicted(ranking, setups, name: str = "") -> list:
         return [s.width_mm * s.height_mm for s in setups]
     if ranking is None:
         return [None] * len(setups)
-    index = {(float(w), float(h)): k for k, (w, h) in enumerate(zip(ranking.width_mm, ranking.height_mm))}
     sign = 1.0 if ranking.criterion == "eig" else -1.0  # S_p: lower is better
-    return [None if (s.width_mm, s.height_mm) not in index else sign * float(ranking.score[index[(s.width_mm,
-                                                                                                   s.height_mm)]])
-            for s in setups]
+    score = {(float(w), float(h)): sign * float(v) for w, h, v in zip(ranking.width_mm, ranking.height_mm, ranking.score)}
+    return [score.get((s.width_mm, s.height_mm)) for s in setups]
 
 
 def stencil_losses(truth: Material, setups, *, preset, fd_step: float, forward, tick=None) -> np.ndarray:
@@ -248,7 +246,8 @@ def _group(recs, names, measure) -> dict:
 
 
 def summary(recs: list[dict]) -> dict:
-    """Selection and held-out scores per criterion (both measures), the recommended criterion and its verdict."""
+    """Selection and held-out scores per criterion and measure, the recommended criterion, and the verdicts of the
+    default and the recommended criterion on the held-out materials (the issue's acceptance)."""
     if not recs:
         raise ValueError("no finished materials to summarise")
     cfg = recs[0]["config"]
@@ -262,7 +261,7 @@ def summary(recs: list[dict]) -> dict:
     seeded_median = [float(np.nanmedian(case_gains(r)[:r["seeded"]])) for r in held]
     out["median_gain_seeded"] = float(np.median(seeded_median)) if held else None
     ranked = [n for n in names if CRITERIA[n] is not None]  # what `virheo design` offers
-    out["recommended"] = None  # none of the criteria beats the candidate mean on the selection materials
+    out["recommended"] = None  # unless a criterion's median score on the selection materials is positive
     if sel:
         med = {n: out["gain"]["selection"][n]["median_score"] for n in ranked}
         best = max(ranked, key=lambda n: -np.inf if med[n] is None else med[n])
