@@ -427,13 +427,13 @@ def case_folder(out, index: int) -> Path:
     return Path(out) / "cases" / f"case_{index:02d}"
 
 
-def run_study(out, *, materials: int = 30, held_out: int = 10, candidates: int = 8, preset="demo",
-              generations: int = 20, fd_step: float = I.STEP, seed: int = 0, maps: int = 2, map_steps: int = 6,
-              posterior_check: int = 3, forward, progress=None) -> dict:
-    """Run (or resume) the study (module docstring) and write its outputs; ``forward`` simulates."""
-    from studies.calibration import design
-    from surrogate.theta import load
+def check_options(materials: int = 30, held_out: int = 10, candidates: int = 8, preset="demo", generations: int = 20,
+                  fd_step: float = I.STEP, seed: int = 0, maps: int = 2, map_steps: int = 6,
+                  posterior_check: int = 3) -> None:
+    """One-line ValueError for options :func:`run_study` cannot work with (named as the command line names them)."""
+    from similarity.estimate import get_preset
 
+    get_preset(preset)
     for name, value, least in (("materials", materials, 1), ("held_out", held_out, 0), ("candidates", candidates, 2),
                                ("generations", generations, 1), ("maps", maps, 0), ("map_steps", map_steps, 2),
                                ("posterior_check", posterior_check, 0)):
@@ -443,6 +443,16 @@ def run_study(out, *, materials: int = 30, held_out: int = 10, candidates: int =
         raise ValueError(f"--held-out {held_out} must be smaller than --materials {materials} (some materials select)")
     if not 0 < fd_step < 0.05 + 1e-12:
         raise ValueError(f"--fd-step {fd_step} must lie in (0, 0.05]: the materials keep 0.05 off the space's faces")
+
+
+def run_study(out, *, materials: int = 30, held_out: int = 10, candidates: int = 8, preset="demo",
+              generations: int = 20, fd_step: float = I.STEP, seed: int = 0, maps: int = 2, map_steps: int = 6,
+              posterior_check: int = 3, forward, progress=None) -> dict:
+    """Run (or resume) the study (module docstring) and write its outputs; ``forward`` simulates."""
+    from studies.calibration import design
+    from surrogate.theta import load
+
+    check_options(materials, held_out, candidates, preset, generations, fd_step, seed, maps, map_steps, posterior_check)
     if forward.store is None:
         raise ValueError("the design-information study needs a simulation store")
     config = _config(materials, held_out, candidates, preset, generations, fd_step, seed, forward.simulator)

@@ -24,20 +24,25 @@ def _study(out, log, *extra):
     return subprocess.run(argv, env=dict(ENV, FAKE_FORWARD_LOG=str(log)), capture_output=True, text=True, timeout=300)
 
 
-def _strip(rec):
-    rec = json.loads(json.dumps(rec))
-    rec.pop("wall_seconds")
-    return rec
+def _finished(out, log) -> tuple[str, list[str]]:
+    """Run the tiny study to the end: (what it printed, every simulation logged so far)."""
+    proc = _study(out, log)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout, log.read_text().splitlines()
+
+
+def _cases(out) -> list[dict]:
+    """The materials' records of a finished study, without their wall times."""
+    recs = json.loads((out / "design_information.json").read_text())["cases"]
+    return [{k: v for k, v in r.items() if k != "wall_seconds"} for r in recs]
 
 
 def test_tiny_study_scores_follow_from_the_stencils_and_resume_without_simulating(tmp_path):
     from studies.design_information import CRITERIA, case_scores
 
     out, log = tmp_path / "di", tmp_path / "sims.log"
-    proc = _study(out, log)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    simulated = log.read_text().splitlines()
-    assert len(simulated) == len(set(simulated)) > 0
+    stdout, simulated = _finished(out, log)
+    assert len(simulated) == len(set(simulated)) > 0  # every simulation ran once
     res = json.loads((out / "design_information.json").read_text())
     cases = res["cases"]
     assert len(cases) == 3 and res["config"]["criteria"] == list(CRITERIA)
@@ -70,15 +75,13 @@ def test_tiny_study_scores_follow_from_the_stencils_and_resume_without_simulatin
     assert s["recommended"] == (best if s["gain"]["selection"][best]["median_score"] > 0 else None)
     assert res["shipped"]["criteria"]["eig"]["materials"] == 1
     assert (out / "predicted_vs_realised.png").stat().st_size > 5000 and (out / "maps.png").stat().st_size > 5000
-    assert "default criterion perpendicularity-reference on the held-out materials" in proc.stdout
+    assert "default criterion perpendicularity-reference on the held-out materials" in stdout
     # a killed run: the finished materials, map and posterior check are read back, a lost case.json comes from the store
-    before = [_strip(c) for c in cases]
+    before = _cases(out)
     (out / "cases" / "case_01" / "case.json").unlink()
-    proc = _study(out, log)
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert log.read_text().splitlines() == simulated
-    assert [_strip(c) for c in json.loads((out / "design_information.json").read_text())["cases"]] == before
-    assert "0 simulations run" in proc.stdout
+    stdout, again = _finished(out, log)
+    assert again == simulated and _cases(out) == before
+    assert "0 simulations run" in stdout
     # another configuration on the same folder: one line, exit 2, nothing simulated
     proc = _study(out, log, "--candidates", "4")
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1 and "other settings" in proc.stderr
@@ -121,4 +124,4 @@ def test_bad_options_exit_2_with_one_line(tmp_path, extra, needle):
     assert proc.returncode == 2
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], proc.stderr
-    assert not (tmp_path / "o" / "cases").exists()
+    assert not (tmp_path / "o").exists()  # checked before any folder is made
