@@ -41,6 +41,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from similarity.design import rank_setups
     from mpm.params import Material, Setup
+    from studies.design_information import reliability_line, validation
     from surrogate.theta import load
 
     covariance = None
@@ -69,7 +70,8 @@ def run(args) -> int:
     ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
     best, score = ranking.best()
     gain, gain_note = expected_gain(ranking, best, material, done, theta, covariance)
-    validated = validation(args.criterion, args.theta if args.theta in ("reference", "fitted") else None)
+    # the study validated the packaged maps only: a custom one is "not validated"
+    validated = validation(args.criterion, args.theta) if args.theta in ("reference", "fitted") else None
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
     if args.json:
@@ -97,19 +99,6 @@ def run(args) -> int:
         if plot_path:
             print(f"  heat map written to {plot_path}")
     return 0
-
-
-def validation(criterion: str, theta: str | None):
-    """The shipped validation figures of ``criterion`` with a packaged Theta map (None for a custom map)."""
-    from studies.design_information import validation as shipped
-
-    return None if theta is None else shipped(criterion, theta)
-
-
-def reliability_line(validated) -> str:
-    from studies.design_information import reliability_line as line
-
-    return line(validated)
 
 
 def expected_gain(ranking, best, material, done, theta, covariance) -> tuple[float | None, str | None]:
