@@ -239,6 +239,10 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
     perp_line = (f"<p>Most perpendicular setup (section 6): <b>{e(perp['setup'])}</b> mm, S_p = {perp['score']:.4f}"
                  + (f", EIG {perp['eig_nats']:.4f} nats" if perp.get("eig_nats") is not None else "") + ".</p>"
                  if perp.get("setup") else "")
+    from studies.design_information import reliability_line, validation
+
+    reliability = (f"<p>EIG ranking, {'<br>'.join(map(e, reliability_line(validation('eig', 'reference')).splitlines()))}"
+                   ".</p>" if nexts else "")
     rheo = ""
     if rheometer is not None:
         rheo = (f"<p>Rheometer curve: {e(rheometer.name)}; {100 * coverage:.0f} % of its points between 1 and "
@@ -266,7 +270,7 @@ img{{max-width:100%;display:block;margin:.5em 0}}h2{{border-bottom:1px solid #cc
 <ul>{normals}</ul>{img('ellipsoids', 'ellipsoids')}
 <h2>Captured vs simulated silhouettes</h2>{ovl}
 <h2>Next setup</h2>{img('eig', 'expected information gain map')}
-<table><tr><th>rank</th><th>setup [mm]</th><th>EIG [nats]</th></tr>{nexts}</table>{perp_line}
+<table><tr><th>rank</th><th>setup [mm]</th><th>EIG [nats]</th></tr>{nexts}</table>{reliability}{perp_line}
 <h2>Noise model and emulator</h2>
 <p>Noise: {noise.frames} frames, N_eff = {noise.n_eff:.0f} independent residuals, loss at the optimum
 {noise.loss_at_optimum:.3g}, discretisation error {noise.discretisation:.3g}, emulator error

@@ -1,5 +1,6 @@
 """``virheo design``: the proposal, JSON and plot outputs, and one-line errors with exit 2."""
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -69,3 +70,34 @@ def test_help_explains_units(capsys):
     assert exc.value.code == 0
     out = capsys.readouterr().out
     assert "Pa s^n" in out and "mm" in out and "sigma_y" in out
+
+
+def test_design_prints_the_expected_gain_and_the_shipped_reliability(capsys):
+    from studies.design_information import SUMMARY_FILE
+
+    shipped = json.loads(SUMMARY_FILE.read_text())
+    v = shipped["criteria"]["perpendicularity-reference"]  # the default: perpendicularity, published Theta map
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59"]) == 0
+    out = capsys.readouterr().out
+    assert (f"within {100 * shipped['within']:.0f} % of the best candidate in {v['within']} of {v['materials']} "
+            f"validation materials, better than the candidates' mean in {v['beats_mean']} of {v['materials']}") in out
+    assert f"median normalised score {v['median_score']:.2f}" in out
+    assert ("weak: this criterion did not beat the average random setup" in out) == (v["sign_test_p"] >= 0.05)
+    assert re.search(r"expected gain: \d+\.\d{3} nats", out)
+    # the same figures in the JSON output, and the EIG criterion reads its own
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--json", "--criterion", "eig"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    e = shipped["criteria"]["eig"]
+    assert data["validation"]["within"] == e["within"] and data["validation"]["materials"] == e["materials"]
+    assert data["expected_gain_nats"] == data["score"]
+
+
+def test_design_with_a_custom_theta_is_not_validated(tmp_path, capsys):
+    from surrogate.theta import load
+
+    path = load("reference").save(tmp_path / "theta.json")
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path)]) == 0
+    assert "reliability: not validated" in capsys.readouterr().out
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path), "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["validation"] is None and data["reliability"].startswith("reliability: not validated")

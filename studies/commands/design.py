@@ -41,6 +41,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from similarity.design import rank_setups
     from mpm.params import Material, Setup
+    from studies.design_information import reliability_line, validation
     from surrogate.theta import load
 
     covariance = None
@@ -68,6 +69,9 @@ def run(args) -> int:
     theta = load(args.theta)
     ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
     best, score = ranking.best()
+    gain, gain_note = expected_gain(ranking, best, material, done, theta, covariance)
+    # the study validated the packaged maps only: a custom one is "not validated"
+    validated = validation(args.criterion, args.theta) if args.theta in ("reference", "fitted") else None
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
     if args.json:
@@ -78,6 +82,9 @@ def run(args) -> int:
             "criterion": args.criterion,
             "next": best.to_dict(),
             "score": score,
+            "expected_gain_nats": gain,
+            "validation": validated,
+            "reliability": reliability_line(validated),
             "valid_candidates": len(ranking),
             "plot": str(plot_path) if plot_path else None,
         }, indent=1))
@@ -86,9 +93,27 @@ def run(args) -> int:
         print(f"next setup: {best} mm (width x height), {label} = {score:.6f}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; Theta map: {theta.name}")
+        print("  expected gain: " + (f"{gain:.3f} nats (expected information gain, linear-Gaussian model)"
+                                     if gain is not None else f"not available ({gain_note})"))
+        print("  " + reliability_line(validated))
         if plot_path:
             print(f"  heat map written to {plot_path}")
     return 0
+
+
+def expected_gain(ranking, best, material, done, theta, covariance) -> tuple[float | None, str | None]:
+    """(EIG in nats of the chosen setup, why not): the ranking's own score for ``eig``, else the EIG ranking's
+    value at the chosen setup."""
+    from similarity.design import rank_setups
+
+    if ranking.criterion == "eig":
+        return float(ranking.best()[1]), None
+    try:
+        eig = rank_setups(material, done, theta=theta, criterion="eig", covariance=covariance)
+    except ValueError as exc:
+        return None, str(exc).splitlines()[0]
+    hit = (eig.width_mm == best.width_mm) & (eig.height_mm == best.height_mm)
+    return (float(eig.score[hit][0]), None) if hit.any() else (None, "the chosen setup has no EIG")
 
 
 def plot(ranking, best, path) -> Path:

@@ -1,0 +1,112 @@
+"""Realised information of a setup: what filming it adds, measured in the simulator at the true material.
+
+A design criterion *predicts* which setup pins the material down best (:mod:`similarity.design`). Whether it
+did is measured here, without the optimiser's noise, on emulated footage of a known material M:
+
+* the loss Hessian of each setup s filmed, H_s, is the finite-difference Hessian of the video loss at M
+  (:mod:`similarity.fd_hessian`, the 18-point stencil) with one pinned step ``STEP`` in the normalised
+  material space, projected onto the positive semi-definite cone (:func:`similarity.belief.psd_projection`:
+  a direction of negative curvature pins nothing);
+* the loss of several setups is their mean, and its Hessian the mean of theirs; information adds, so the
+  information after setups 1..k is the sum H_1 + ... + H_k (a constant factor changes no ranking);
+* the realised information gain of a candidate c after the setups done is the log-volume by which it shrinks
+  the Laplace ellipsoid, ``log det(H_done + H_c + eps I) - log det(H_done + eps I)`` (:func:`log_det_gain`),
+  with a ridge eps = ``RIDGE`` x the largest eigenvalue of H_done: a direction pinned less than 1 % as well
+  as the best-pinned one counts as unknown, as the prior would leave it.
+
+Why one pinned step: the loss grows about linearly with the distance from M (silhouette pixels; a cone, not
+a paraboloid), so FD eigenvalues scale with 1/h and mean nothing absolute; at one step for every setup and
+material they compare.  h = 0.05 is the step docs/landscapes.md measured to move every probe's silhouettes by
+tens to hundreds of pixels in every setup while keeping the normal stable.  Two other measures are checked
+beside it: the smallest eigenvalue of the sum (:func:`min_eig_gain`, E-optimality), and the log det gain of the
+candidate's direction alone, its Hessian scaled to the trace of H_done (:func:`shape_gain`): a larger setup moves
+more silhouette pixels per step, so its Hessian is larger whatever its direction.
+
+Scoring a criterion against a set of candidates (:func:`normalised_score`, :func:`sign_test`,
+:func:`rank_agreement`): the normalised score (pick - candidate mean) / (best - candidate mean) is 1 for the best
+candidate and 0 for an average one; the one-sided sign test asks whether picks beat the candidate mean more
+often than a coin would.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from similarity.belief import psd_projection
+from similarity.fd_hessian import hessian_from_stencil
+
+STEP = 0.05  # the FD step in the normalised material space (docs/landscapes.md, step study)
+RIDGE = 1e-2  # eps = RIDGE x lambda_max(H_done)
+
+
+def setup_hessian(stencil_losses, step: float = STEP, center: float = 0.0) -> np.ndarray:
+    """The PSD-projected FD Hessian (3, 3) of one setup's loss from its 18 stencil losses
+    (:func:`similarity.fd_hessian.stencil` order); ``center`` is the loss at the material itself (0 on its own
+    footage)."""
+    return psd_projection(hessian_from_stencil(stencil_losses, step, center))[0]
+
+
+def ridge(h_done) -> float:
+    """eps = RIDGE x the largest eigenvalue of the information of the setups done (> 0)."""
+    top = float(np.linalg.eigvalsh(np.asarray(h_done, float))[-1])
+    if not top > 0:
+        raise ValueError("the setups done carry no information (their Hessian has no positive eigenvalue)")
+    return RIDGE * top
+
+
+def log_det_gain(h_done, h_new, eps: float | None = None) -> np.ndarray:
+    """log det(H_done + H_new + eps I) - log det(H_done + eps I): minus twice the change of the Laplace ellipsoid's
+    log-volume, for one H_done (3, 3) and candidates H_new (..., 3, 3); eps None: :func:`ridge`."""
+    h_done = np.asarray(h_done, float)
+    eps = ridge(h_done) if eps is None else float(eps)
+    base = h_done + eps * np.eye(h_done.shape[-1])
+    after = np.linalg.slogdet(base + np.asarray(h_new, float))[1]
+    return after - np.linalg.slogdet(base)[1]
+
+
+def shape_gain(h_done, h_new, eps: float | None = None) -> np.ndarray:
+    """:func:`log_det_gain` with each candidate scaled to the trace of H_done: what its *direction* adds if it were
+    as informative as the setups done (the question the perpendicularity criterion answers), its size left out."""
+    h_done, h_new = np.asarray(h_done, float), np.asarray(h_new, float)
+    tr = np.trace(h_new, axis1=-2, axis2=-1)[..., None, None]
+    return log_det_gain(h_done, h_new * np.trace(h_done) / np.where(tr > 0, tr, np.nan), eps)
+
+
+def min_eig_gain(h_done, h_new) -> np.ndarray:
+    """lambda_min(H_done + H_new) - lambda_min(H_done) (E-optimality), candidates H_new (..., 3, 3)."""
+    h_done = np.asarray(h_done, float)
+    return np.linalg.eigvalsh(h_done + np.asarray(h_new, float))[..., 0] - np.linalg.eigvalsh(h_done)[0]
+
+
+def normalised_score(pick: float, candidates, best: float | None = None) -> float:
+    """(pick - mean) / (best - mean) with the mean of the candidates' realised gains: 1 = as good as the best,
+    0 = as good as their mean, negative = worse.  ``best``: the best gain of a larger set (the candidates with
+    the criteria's picks), else the candidates' largest.  NaN when the best does not exceed the mean."""
+    c = np.asarray(candidates, float)
+    c = c[np.isfinite(c)]
+    mean = float(np.mean(c))
+    best = float(np.max(c)) if best is None else float(best)
+    return float((pick - mean) / (best - mean)) if best > mean and np.isfinite(pick) else float("nan")
+
+
+def sign_test(scores) -> tuple[int, int, float]:
+    """(materials where the pick beats the candidate mean, materials with a decision, one-sided p): the
+    binomial probability of at least that many wins out of the decided ones under a fair coin."""
+    from scipy.stats import binomtest
+
+    s = np.asarray(scores, float)
+    s = s[np.isfinite(s) & (s != 0)]
+    wins = int(np.sum(s > 0))
+    p = float(binomtest(wins, len(s), 0.5, alternative="greater").pvalue) if len(s) else float("nan")
+    return wins, int(len(s)), p
+
+
+def rank_agreement(predicted, realised) -> float:
+    """Spearman's rank correlation between a criterion's predicted information (higher = better) of the
+    candidates and their realised gains; NaN where either is constant or fewer than 3 are finite."""
+    from scipy.stats import spearmanr
+
+    p, r = np.asarray(predicted, float), np.asarray(realised, float)
+    ok = np.isfinite(p) & np.isfinite(r)
+    if ok.sum() < 3 or np.ptp(p[ok]) == 0 or np.ptp(r[ok]) == 0:
+        return float("nan")
+    return float(spearmanr(p[ok], r[ok]).statistic)
