@@ -26,6 +26,10 @@ Scoring a criterion against a set of candidates (:func:`normalised_score`, :func
 :func:`rank_agreement`): the normalised score (pick - candidate mean) / (best - candidate mean) is 1 for the best
 candidate and 0 for an average one; the one-sided sign test asks whether picks beat the candidate mean more
 often than a coin would.
+
+Measured in the simulator (:func:`stencil_losses`, :func:`setup_hessians`, :func:`realised_gains`): each setup's
+18 stencil losses around the true material against its own emulated footage, their Hessians, and the gain of
+each candidate by one of :data:`MEASURES`.
 """
 from __future__ import annotations
 
@@ -100,6 +104,14 @@ def sign_test(scores) -> tuple[int, int, float]:
     return wins, int(len(s)), p
 
 
+def last_where_ruled_out(predicted) -> np.ndarray:
+    """A criterion's predicted information of the candidates (higher = better) as numbers: a candidate it rules out
+    (None) ranks last, one below the lowest prediction."""
+    known = [float(p) for p in predicted if p is not None]
+    worst = min(known) - 1.0 if known else 0.0
+    return np.array([worst if p is None else float(p) for p in predicted], float)
+
+
 def rank_agreement(predicted, realised) -> float:
     """Spearman's rank correlation between a criterion's predicted information (higher = better) of the
     candidates and their realised gains; NaN where either is constant or fewer than 3 are finite."""
@@ -110,3 +122,30 @@ def rank_agreement(predicted, realised) -> float:
     if ok.sum() < 3 or np.ptp(p[ok]) == 0 or np.ptp(r[ok]) == 0:
         return float("nan")
     return float(spearmanr(p[ok], r[ok]).statistic)
+
+
+# the realised-information measures: name -> gain(H_done, H_new); the first is the study's
+MEASURES = {"gain": log_det_gain, "gain_min_eig": min_eig_gain, "gain_shape": shape_gain}
+
+
+def stencil_losses(truth, setups, *, preset, fd_step: float, forward, tick=None) -> np.ndarray:
+    """Losses (len(setups), 18) of the FD stencil around ``truth`` (a Material) in each setup against its own
+    emulated footage (the preset's final model; NaN where a simulation failed): 1 + 18 simulations per setup.
+    ``tick``: called per simulation, as ``on_result`` of :meth:`mpm.forward.Forward.pair_losses`."""
+    from similarity.emulation import emulate, probe_losses
+    from similarity.fd_hessian import stencil
+
+    shots = emulate(truth, setups, preset=preset, forward=forward)
+    return probe_losses([(truth, e) for e in shots], stencil(fd_step), preset.final, forward, tick)
+
+
+def setup_hessians(losses, step: float = STEP) -> list:
+    """:func:`setup_hessian` of each row of stencil losses; None where a row is not finite (a failed simulation)."""
+    return [setup_hessian(row, step) if np.all(np.isfinite(row)) else None for row in np.asarray(losses, float)]
+
+
+def realised_gains(h_done, hessians, measure: str = "gain") -> np.ndarray:
+    """The gain by ``measure`` (:data:`MEASURES`) of each candidate Hessian after ``h_done``; NaN where None."""
+    ok = np.array([h is not None for h in hessians])
+    stack = np.array([h if h is not None else np.eye(3) for h in hessians], float).reshape(-1, 3, 3)
+    return np.where(ok, MEASURES[measure](np.asarray(h_done, float), stack), np.nan)

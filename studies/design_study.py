@@ -169,6 +169,9 @@ class DesignSummary(JsonRecord):
 
 @dataclass(frozen=True)
 class DesignCase:
+    """A material and its first setup (:func:`studies.calibration.design`), and the folder of its case (also the
+    cases of :mod:`studies.design_information`)."""
+
     index: int
     truth: Material
     first: Setup

@@ -239,7 +239,7 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
     perp_line = (f"<p>Most perpendicular setup (section 6): <b>{e(perp['setup'])}</b> mm, S_p = {perp['score']:.4f}"
                  + (f", EIG {perp['eig_nats']:.4f} nats" if perp.get("eig_nats") is not None else "") + ".</p>"
                  if perp.get("setup") else "")
-    from studies.design_information import reliability_line, validation
+    from studies.design_validation import reliability_line, validation
 
     reliability = (f"<p>EIG ranking, {'<br>'.join(map(e, reliability_line(validation('eig', 'reference')).splitlines()))}"
                    ".</p>" if nexts else "")

@@ -18,7 +18,8 @@ How to add a study
    and ``case_files`` (globs under OUT, in the order the cases are listed), with these methods:
    ``cases()`` (the planned cases in order, each with a ``folder``), ``run_case(case, forward=, progress=)``
    (a record), ``summary(records)``, ``table(records, summary)`` (markdown) and ``plots(records, summary)``;
-   optionally ``announce(case)`` / ``report(record)`` (progress lines) and ``result`` (the JSON layout).
+   optionally ``announce(case)`` / ``report(record)`` (progress lines), ``after_cases`` (parts that need every
+   case, e.g. the maps of :mod:`studies.design_information`) and ``result`` (the JSON layout).
 4. A ``run_study(out, ..., forward, progress)`` in its module checks the options, builds the configuration (what
    a case's result depends on: preset, seeds, budgets, the simulator) and returns
    ``TheStudy(out, config).run(forward=forward, progress=progress)``; its command in ``studies/commands/``
@@ -62,6 +63,12 @@ def finished_case(folder, config: dict) -> dict | None:
     return rec
 
 
+def tell(progress, text: str | None) -> None:
+    """Hand ``text`` to the ``progress`` callback as a message line (nothing without a callback or a text)."""
+    if progress and text:
+        progress({"event": "message", "text": text})
+
+
 class Study:
     """A resumable per-case study: subclasses supply what differs (module docstring)."""
 
@@ -89,6 +96,9 @@ class Study:
 
     def plots(self, records: list, summary) -> None:
         raise NotImplementedError
+
+    def after_cases(self, records: list, *, forward, progress=None) -> None:
+        """Further parts that need the finished cases (each kept in its own file), run before the outputs."""
 
     def announce(self, case) -> str | None:
         """Progress line before a case runs (or is read back)."""
@@ -123,14 +133,13 @@ class Study:
 
     def run(self, *, forward, progress=None) -> dict:
         """Run (or resume) every case in order, then :meth:`write`; returns what OUT/<name>.json holds."""
-        def say(text):
-            if progress and text:
-                progress({"event": "message", "text": text})
-
         t0 = time.perf_counter()
+        recs = []
         for case in self.cases():
-            say(self.announce(case))
-            say(self.report(self.case(case, forward=forward, progress=progress)))
+            tell(progress, self.announce(case))
+            recs.append(self.case(case, forward=forward, progress=progress))
+            tell(progress, self.report(recs[-1]))
+        self.after_cases(recs, forward=forward, progress=progress)
         return self.write(wall_seconds=time.perf_counter() - t0)
 
     def write(self, *, wall_seconds: float | None = None) -> dict:

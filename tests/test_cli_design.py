@@ -73,7 +73,7 @@ def test_help_explains_units(capsys):
 
 
 def test_design_prints_the_expected_gain_and_the_shipped_reliability(capsys):
-    from studies.design_information import SUMMARY_FILE
+    from studies.design_validation import SUMMARY_FILE
 
     shipped = json.loads(SUMMARY_FILE.read_text())
     v = shipped["criteria"]["perpendicularity-reference"]  # the default: perpendicularity, published Theta map

@@ -38,15 +38,16 @@ def _cases(out) -> list[dict]:
 
 
 def test_tiny_study_scores_follow_from_the_stencils_and_resume_without_simulating(tmp_path):
-    from studies.design_information import CRITERIA, case_scores
+    from studies.design_information import CRITERIA, InformationRecord
 
     out, log = tmp_path / "di", tmp_path / "sims.log"
     stdout, simulated = _finished(out, log)
     assert len(simulated) == len(set(simulated)) > 0  # every simulation ran once
     res = json.loads((out / "design_information.json").read_text())
     cases = res["cases"]
+    scores = [InformationRecord.from_dict(c).scores() for c in cases]
     assert len(cases) == 3 and res["config"]["criteria"] == list(CRITERIA)
-    for c in cases:
+    for c, sc in zip(cases, scores):
         cands = c["candidates"]
         seeded = cands[:c["seeded"]]
         assert c["seeded"] == 3 and len(set(seeded)) == 3 and c["first_setup"] not in cands
@@ -57,18 +58,18 @@ def test_tiny_study_scores_follow_from_the_stencils_and_resume_without_simulatin
         np.testing.assert_allclose(c["gain"], I.log_det_gain(h[0], np.array(h[1:])), rtol=1e-9)
         assert np.all(np.array(c["gain"]) > -1e-9)  # information never shrinks
         g = np.array(c["gain"])
-        for name, v in case_scores(c).items():
-            k = cands.index(v["pick"])
-            assert v["gain"] == g[k]
-            assert v["score"] == pytest.approx((g[k] - g[:3].mean()) / (g.max() - g[:3].mean()))
+        for name, v in sc.items():
+            k = cands.index(v.pick)
+            assert v.gain == g[k]
+            assert v.score == pytest.approx((g[k] - g[:3].mean()) / (g.max() - g[:3].mean()))
             if g[k] == g.max():
-                assert v["score"] == pytest.approx(1.0)
+                assert v.score == pytest.approx(1.0)
     s = res["summary"]
     assert (s["selection"], s["held_out"]) == (2, 1)
     for name, v in s["gain"]["held_out"].items():
-        assert v["scores"] == [case_scores(cases[2])[name]["score"]]
+        assert v["scores"] == [scores[2][name].score]
     for name, v in s["gain"]["selection"].items():
-        sc = [case_scores(c)[name]["score"] for c in cases[:2]]
+        sc = [s[name].score for s in scores[:2]]
         assert v["scores"] == sc and v["beats_mean"] == sum(x > 0 for x in sc)
         assert v["within"] == sum(x >= 0.9 for x in sc)
     best = max((n for n in CRITERIA if CRITERIA[n]), key=lambda n: s["gain"]["selection"][n]["median_score"])
@@ -93,7 +94,9 @@ def test_posterior_check_gives_one_volume_per_candidate_and_is_read_back(tmp_pat
     log-volume per candidate, smaller than the prior box's, the same result read back without simulating."""
     from mpm.forward import Forward
     from studies import design_information as D
+    from studies import design_information_checks as checks
     from studies.calibration import design
+    from studies.design_study import DesignCase
     from surrogate.theta import load
 
     monkeypatch.syspath_prepend(str(TESTS))
@@ -102,17 +105,17 @@ def test_posterior_check_gives_one_volume_per_candidate_and_is_read_back(tmp_pat
     config = D._config(1, 0, 2, "demo", 2, 0.05, 0, "fake_forward:simulate")
     with Forward(tmp_path / "store", workers=0, simulator="fake_forward:simulate") as forward:
         truth, first = design(1, 0)[0]
-        rec = D.run_case(tmp_path / "case", 0, truth, first, config=config, forward=forward,
+        rec = D.run_case(DesignCase(0, truth, first, tmp_path / "case"), config=config, forward=forward,
                          thetas={t: load(t) for t in ("reference", "fitted")})
-        check = D.posterior_volume(tmp_path, rec, forward=forward, points=24, min_ess=100, max_steps=1500)
+        check = checks.posterior_volume(tmp_path, rec, forward=forward, points=24, min_ess=100, max_steps=1500)
         n = len(log.read_text().splitlines())
-        assert D.posterior_volume(tmp_path, rec, forward=forward, points=24) == check
+        assert checks.posterior_volume(tmp_path, rec, forward=forward, points=24) == check
         assert len(log.read_text().splitlines()) == n
-    vol = np.array(check["log_volume"])
-    assert len(vol) == len(rec["candidates"]) and np.all(np.isfinite(vol))
+    vol = np.array(check.log_volume)
+    assert len(vol) == len(rec.candidates) and np.all(np.isfinite(vol))
     assert np.all(vol < 0.5 * np.sum(np.log((2 * 0.15) ** 2 / 12)))  # narrower than the uniform box of +-0.15
-    rho = D.volume_agreement(check, rec)
-    assert set(rho) == set(D.MEASURES) and all(-1 <= v <= 1 for v in rho.values() if np.isfinite(v))
+    rho = checks.volume_agreement(check, rec)
+    assert set(rho) == set(I.MEASURES) and all(-1 <= v <= 1 for v in rho.values() if np.isfinite(v))
 
 
 @pytest.mark.parametrize("extra,needle", [(["--held-out", "12"], "--held-out"), (["--candidates", "1"], "--candidates"),

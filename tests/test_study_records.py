@@ -8,9 +8,13 @@ the fake forward model (``VIRHEO_SIMULATOR=fake_forward:simulate``, ``--workers 
 --new-simulations 12 --half-width 0.5 --min-ess 100 --max-steps 500``, case 0;
 ``demo_result.json``: ``virheo demo --generations 3``; ``demo_posterior.json``: ``virheo report`` of that run
 (``--new-simulations 8 --min-ess 300 --half-width 0.5 --no-discretisation``), its EIG grid and flow band cut short.
+``design_information/`` was written by the code at commit 7a5399b (dict records, before the study skeleton), the
+same way: ``virheo study design-information --materials 2 --held-out 1 --candidates 2 --generations 3 --maps 1
+--map-steps 2 --posterior-check 1``, its outputs and parts (figures left out).
 """
 import json
 import pickle
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +25,7 @@ from mpm.params import Material, Setup
 from similarity.cma_stage import Generation, Stage, StageState, _strategy
 from similarity.posterior_summary import PosteriorSummary, read_posterior
 from studies import calibration as C
+from studies import design_information as DI
 from studies import design_study as D
 
 BEFORE = Path(__file__).resolve().parent / "fixtures" / "before_typed_records"
@@ -86,6 +91,41 @@ def test_calibration_case_file_from_before_is_finished_and_loads(tmp_path):
     s = summ.settings["same"]
     assert s.cases == 1 and s.inside_90["hpd"] == int(old["credible_level"]["hpd"] <= C.NOMINAL)
     assert summ.to_dict()["same"]["median_e_rel"] == old["e_rel"]
+
+
+def _without_wall_time(result: dict) -> str:
+    return json.dumps({k: v for k, v in result.items() if k != "wall_seconds"})  # key order kept
+
+
+def test_design_information_run_from_before_is_finished_and_writes_the_same(tmp_path):
+    out = tmp_path / "di"
+    shutil.copytree(BEFORE / "design_information", out)
+    old = {name: (out / name).read_text() for name in ("design_information.json", "design_information.md",
+                                                        "design_validation.json")}
+    for name in old:
+        (out / name).unlink()
+    before = json.loads(old["design_information.json"])
+    study = DI.InformationStudy(out, before["config"], maps=1, map_steps=2, posterior_check=1)
+    planned = list(study.cases())
+    assert [c.folder for c in planned] == [out / "cases" / f"case_{i:02d}" for i in range(2)]
+    # every material, the map and the posterior check are finished: read back without simulating
+    recs = [study.case(c, forward=_NoForward()) for c in planned]
+    assert all(isinstance(r, DI.InformationRecord) and isinstance(r.stage_1, DI.StageOne) for r in recs)
+    assert [r.to_dict() for r in recs] == before["cases"]  # the same JSON: old and new case files are one format
+    study.after_cases(recs, forward=_NoForward())
+    # the outputs written from them are the ones the old code wrote (but its wall time)
+    res = study.write()
+    assert _without_wall_time(json.loads((out / "design_information.json").read_text())) == _without_wall_time(before)
+    assert (out / "design_information.md").read_text() == old["design_information.md"]
+    assert (out / "design_validation.json").read_text() == old["design_validation.json"]
+    assert DI.InformationSummary.from_dict(res["summary"]).to_dict() == res["summary"]
+    # the gains a record recomputes from its Hessians are the ones it stored
+    for r in recs:
+        for measure in ("gain", "gain_min_eig", "gain_shape"):
+            np.testing.assert_allclose(r.realised(measure), np.array(getattr(r, measure), float), rtol=1e-12)
+    other = DI.InformationStudy(out, before["config"] | {"candidates": 3})
+    with pytest.raises(ValueError, match="other settings"):
+        other.case(planned[0], forward=_NoForward())
 
 
 def test_stage_history_of_a_result_file_from_before_loads():

@@ -41,7 +41,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from similarity.design import rank_setups
     from mpm.params import Material, Setup
-    from studies.design_information import reliability_line, validation
+    from studies.design_validation import reliability_line, validation
     from surrogate.theta import load
 
     covariance = None

@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"effective samples {post.ess:.0f}, {'converged' if post.converged else 'NOT converged'}")
     nxt = summary.next_setups_eig
     if nxt:
-        from studies.design_information import reliability_line, validation
+        from studies.design_validation import reliability_line, validation
 
         print(f"next setup by expected information gain: {nxt[0]['setup']} mm ({nxt[0]['eig_nats']:.3f} nats)")
         print("  " + reliability_line(validation("eig", "reference")))
