@@ -8,6 +8,7 @@
 #include <functional>
 #include <mutex>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <string>
 #include <thread>

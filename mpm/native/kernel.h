@@ -5,7 +5,8 @@
 // step: P2G, grid, G2P, return mapping (paper section 4, appendix B); the constants arrive from their one
 // Python home (mpm/scene.py, mpm/constitutive.py) through Params.
 //
-// Layout: particles in structure-of-arrays, float32, padded to a whole number of 16-lane blocks; the grid is
+// Layout: particles in blocked structure-of-arrays (16 lanes of one field contiguous, all fields of a block
+// together, so that a step streams through one region of memory), float32, padded to whole blocks; the grid is
 // the dense window of mpm/stencil.py with 4 floats per node (momentum or velocity, then mass; 2D: one pad),
 // its last axis contiguous, so that one stencil row (3 nodes) is one 16-float vector (the 4th node gets + 0).
 // Per block of 16 particles the constitutive update runs across the lanes; the transfers run per particle
@@ -372,9 +373,35 @@ struct Engine {
     Rule rule;
     int N = 0, NP = 0, T = 1;
     float inv_dx = 0;
-    // particles (SoA, NP = N rounded up to whole blocks)
-    std::vector<float> x[D], v[D], C[D * D], be[6], iso, loge;
-    std::vector<int> flags, id, base[D];
+    // particles: NP = N rounded up to whole blocks; field f of particle p at word (p / W) * NF * W + f * W + p % W
+    template <class T>
+    struct Field {
+        T* p0 = nullptr;
+        T& operator[](long p) const { return p0[(unsigned long)p / W * (NF * W) + (unsigned long)p % W]; }
+    };
+    // in the order a step reads them
+    static constexpr int F_X = 0, F_BASE = D, F_BE = 2 * D, F_ISO = F_BE + 6, F_LOGE = F_ISO + 1, F_FLAGS = F_LOGE + 1,
+                         F_V = F_FLAGS + 1, F_C = F_V + D, F_ID = F_C + D * D, NF = F_ID + 1;
+    struct Words {  // raw 64-byte aligned memory: each word is written and read as one type only
+        void* ptr = nullptr;
+        void reset(size_t words) {
+            std::free(ptr);
+            ptr = std::aligned_alloc(64, (words * 4 + 63) / 64 * 64);
+        }
+        ~Words() { std::free(ptr); }
+    } store, spare;
+    Field<float> x[D], v[D], C[D * D], be[6], iso, loge;
+    Field<int> flags, id, base[D];
+    template <class T>
+    Field<T> field(const Words& s, int f) const { return Field<T>{reinterpret_cast<T*>(s.ptr) + f * W}; }
+    void bind() {
+        for (int a = 0; a < D; a++) x[a] = field<float>(store, F_X + a), v[a] = field<float>(store, F_V + a),
+                                    base[a] = field<int>(store, F_BASE + a);
+        for (int c = 0; c < D * D; c++) C[c] = field<float>(store, F_C + c);
+        for (int c = 0; c < 6; c++) be[c] = field<float>(store, F_BE + c);
+        iso = field<float>(store, F_ISO), loge = field<float>(store, F_LOGE);
+        flags = field<int>(store, F_FLAGS), id = field<int>(store, F_ID);
+    }
     // grids A (read by G2P) and B (written by P2G), T copies each
     std::vector<float> grid[2];
     long cap[2] = {0, 0};
@@ -401,21 +428,18 @@ struct Engine {
         inv_dx = 1.0f / P.dx;
         if (T > 1) pool.start(T);
         rule = Rule{P.alpha, P.beta, P.flow_c};
-        for (int a = 0; a < D; a++) {
-            x[a].assign(NP, 0.0f);
-            v[a].assign(NP, 0.0f);
-            base[a].assign(NP, 0);
-            for (int i = 0; i < NP; i++) x[a][i] = (float)pos[(long)(i < n ? i : n - 1) * D + a];
-        }
-        for (int c = 0; c < D * D; c++) C[c].assign(NP, 0.0f);
-        for (int c = 0; c < 6; c++) be[c].assign(NP, c < 3 ? 1.0f : 0.0f);
-        iso.assign(NP, 1.0f);
-        loge.assign(NP, P.no_warm_start);
-        flags.assign(NP, 0);
-        id.assign(NP, 0);
+        store.reset((size_t)NP * NF);
+        spare.reset((size_t)NP * NF);
+        bind();
         for (int i = 0; i < NP; i++) {
-            flags[i] = i < n ? flags0[i] : flags0[n - 1];
-            id[i] = i < n ? i : n - 1;
+            int q = i < n ? i : n - 1;  // lanes past the last particle copy it
+            for (int a = 0; a < D; a++) x[a][i] = (float)pos[(long)q * D + a], v[a][i] = 0.0f, base[a][i] = 0;
+            for (int c = 0; c < D * D; c++) C[c][i] = 0.0f;
+            for (int c = 0; c < 6; c++) be[c][i] = c < 3 ? 1.0f : 0.0f;
+            iso[i] = 1.0f;
+            loge[i] = P.no_warm_start;
+            flags[i] = flags0[q];
+            id[i] = q;
         }
         bases_and_box(0, NP);
         zmask2d = 0;
@@ -963,20 +987,17 @@ struct Engine {
         }
         for (long k = 0; k < w.count; k++) start[k + 1] += start[k];
         for (int p = 0; p < N; p++) order[start[key[p]]++] = p;
-        std::vector<float> tmp(N);
-        auto permute = [&](std::vector<float>& a) {
-            for (int p = 0; p < N; p++) tmp[p] = a[order[p]];
-            std::copy(tmp.begin(), tmp.end(), a.begin());
-        };
-        std::vector<int> tmpi(N);
-        auto permute_i = [&](std::vector<int>& a) {
-            for (int p = 0; p < N; p++) tmpi[p] = a[order[p]];
-            std::copy(tmpi.begin(), tmpi.end(), a.begin());
-        };
-        for (int a = 0; a < D; a++) permute(x[a]), permute(v[a]), permute_i(base[a]);
-        for (int c = 0; c < D * D; c++) permute(C[c]);
-        for (int c = 0; c < 6; c++) permute(be[c]);
-        permute(iso), permute(loge), permute_i(flags), permute_i(id);
+        // all fields of particle order[p] into slot p of the spare region (lanes past N stay), then swap
+        const char* from = static_cast<const char*>(store.ptr);
+        char* to = static_cast<char*>(spare.ptr);
+        for (int p = 0; p < NP; p++) {
+            unsigned long q = p < N ? order[p] : p;
+            const char* src = from + (q / W * (NF * W) + q % W) * 4;
+            char* dst = to + ((unsigned long)p / W * (NF * W) + (unsigned long)p % W) * 4;
+            for (int f = 0; f < NF; f++) std::memcpy(dst + f * W * 4, src + f * W * 4, 4);
+        }
+        std::swap(store.ptr, spare.ptr);
+        bind();
     }
 
     // ---------------------------------------------------------------------------------------------------
