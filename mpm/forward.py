@@ -165,9 +165,9 @@ class Forward:
         """Results of ``requests`` in order: from the store where present, else simulated and stored."""
         return batch.evaluate(requests, store=self.store, executor=self.executor, on_result=on_result)
 
-    def results(self, material, experiments, model: ForwardModel) -> list[SimResult]:
+    def results(self, material, experiments, model: ForwardModel, on_result: OnResult | None = None) -> list[SimResult]:
         """Simulated results of ``material`` in each of ``experiments`` with ``model``."""
-        return self.evaluate([self.request(material, e, model) for e in experiments])
+        return self.evaluate([self.request(material, e, model) for e in experiments], on_result)
 
     def silhouettes(self, material, experiments, model: ForwardModel) -> list:
         """Simulated silhouettes (F, H, W) of ``material`` in each of ``experiments``, None where it failed."""

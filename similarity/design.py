@@ -21,6 +21,12 @@ paper), in a linear-Gaussian (Laplace) approximation in the normalised material 
   norm), i.e. a new setup is assumed to be as informative as the ones done were on average;
   without a posterior c = ``information_scale``;
 * EIG(s) = 1/2 log det(I + Sigma F_s) nats, exact for a linear-Gaussian model.
+
+``criterion="information"`` (:func:`rank_by_simulation`) asks the simulator instead of the plane-Poiseuille
+model: the 16 setups of :func:`similarity.information.grid_setups` are scored by the log det gain of their FD loss
+Hessians at the current estimate (sequential D-optimal design, :func:`similarity.information.predicted_gains`),
+19 simulations per setup.  It sees how much a setup pins down as well as which direction, which the Theta-based
+criteria do not (docs/uncertainty.md, "Does the design pay off?").
 """
 from __future__ import annotations
 
@@ -37,7 +43,8 @@ from .belief import PRIOR_PRECISION
 from .normals import loss_normal, loss_normals, perpendicularity
 from .space import EXTENT, candidate_setups
 
-CRITERIA = ("perpendicularity", "eig")
+CRITERIA = ("perpendicularity", "eig")  # Theta-based, no simulation; "information": rank_by_simulation
+SIMULATION_PRESET = "demo"  # whose final model rank_by_simulation simulates by default (5 mm cells)
 DEFAULT_INFORMATION_SCALE = 1.0e4  # c without a posterior: a setup pins its normal to ~1 % of the box
 
 
@@ -52,16 +59,20 @@ class Ranking:
     score: np.ndarray
     normals: np.ndarray
     done_normals: np.ndarray
-    criterion: str = "perpendicularity"  # "eig": score is the expected information gain in nats
+    criterion: str = "perpendicularity"  # "eig": expected information gain in nats; "information": log det gain
     information: np.ndarray | None = None  # "eig": Fisher information F_s (k, 3, 3) per candidate
     covariance: np.ndarray | None = None  # "eig": the current posterior covariance Sigma
 
     def __len__(self) -> int:
         return len(self.score)
 
+    @property
+    def higher_is_better(self) -> bool:
+        return self.criterion != "perpendicularity"
+
     def best(self) -> tuple[Setup, float]:
-        """(setup, score) of the best candidate: the first minimum of S_p, or the first maximum of the EIG."""
-        i = int(np.argmax(self.score)) if self.criterion == "eig" else int(np.argmin(self.score))
+        """(setup, score) of the best candidate: the first minimum of S_p, or the first maximum of the gain."""
+        i = int(np.nanargmax(self.score)) if self.higher_is_better else int(np.argmin(self.score))
         return Setup(float(self.width_mm[i]), float(self.height_mm[i])), float(self.score[i])
 
     def grid(self) -> np.ndarray:
@@ -171,6 +182,26 @@ def rank_setups(material, done, theta="reference", variant: str = "scaled", crit
         raise ValueError(f"no candidate setup makes {material} flow in Theta's plane-Poiseuille model")
     q = q[valid]
     return Ranking(material, done, width[valid], height[valid], perpendicularity(q_done, q), q, q_done)
+
+
+def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_step: float | None = None, tick=None) -> Ranking:
+    """Score the setups of :func:`similarity.information.grid_setups` by the log det gain of their simulated FD
+    loss Hessians at ``material`` after the setups ``done`` (module docstring), simulated by ``forward`` with the
+    preset's final model; higher is better.  A setup whose simulations failed is left out."""
+    from similarity.information import STEP, grid_setups, predicted_gains
+    from similarity.presets import get_preset
+
+    material, done = _material(material), _setups(done)
+    setups = grid_setups()
+    gains = predicted_gains(material, done, setups, preset=get_preset(preset), forward=forward,
+                            fd_step=STEP if fd_step is None else fd_step, tick=tick)
+    ok = np.isfinite(gains)
+    if not ok.any():
+        raise ValueError(f"every simulation of the candidate setups around {material} failed")
+    w = np.array([s.width_mm for s in setups])[ok]
+    h = np.array([s.height_mm for s in setups])[ok]
+    none = np.empty((int(ok.sum()), 3))
+    return Ranking(material, done, w, h, gains[ok], none, np.empty((len(done), 3)), "information")
 
 
 def next_setup(material, done, theta="reference", criterion: str = "perpendicularity", covariance=None) -> Setup:

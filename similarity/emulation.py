@@ -20,19 +20,20 @@ def _default_camera():
 
 def emulate(material: Material, setups: Sequence[Setup], *, density: float = DEFAULT_DENSITY_KG_M3, camera=None,
             depth_mm: float = DEFAULT_DEPTH_MM, preset="demo", forward: Forward | None = None,
-            image_size=WORKING_SIZE) -> list[Experiment]:
+            image_size=WORKING_SIZE, on_result=None) -> list[Experiment]:
     """Footage of ``material`` in each setup, simulated at the preset's final discretisation.
 
     Returns one :class:`mpm.experiment.Experiment` per setup (``path`` None, named ``emulated_<W>x<H>``).
     ``camera``: a Camera (e.g. ``mpm.experiment.load(dir).camera``) or None for ``Camera.default()``;
-    ``forward``: the store and executor that simulate (None: no store, in this process).
+    ``forward``: the store and executor that simulate (None: no store, in this process); ``on_result`` as in
+    :meth:`mpm.forward.Forward.evaluate`.
     """
     preset = get_preset(preset)
     forward = forward if forward is not None else Forward()
     camera = camera if camera is not None else _default_camera()
     shells = [blank_experiment(s, density=density, camera=camera, depth_mm=depth_mm, image_size=image_size,
                                name=f"emulated_{Setup(s.width_mm, s.height_mm)}") for s in setups]
-    for e, r in zip(shells, forward.results(material, shells, preset.final)):
+    for e, r in zip(shells, forward.results(material, shells, preset.final, on_result)):
         if not r.ok or r.silhouettes is None:
             raise RuntimeError(f"ground-truth simulation of {e.name} failed: {r.error}")
         e.frames = r.silhouettes

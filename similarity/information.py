@@ -30,6 +30,11 @@ often than a coin would.
 Measured in the simulator (:func:`stencil_losses`, :func:`setup_hessians`, :func:`realised_gains`): each setup's
 18 stencil losses around the true material against its own emulated footage, their Hessians, and the gain of
 each candidate by one of :data:`MEASURES`.
+
+Predicted in the simulator (:func:`predicted_gains`, the ``information`` criterion of :mod:`similarity.design`):
+the same log det gain computed at the current *estimate* instead of the unknown truth, on footage emulated there,
+for the setups of :func:`grid_setups`.  This is sequential D-optimal design: it is what the realised gain would be
+if the estimate were the truth, so it sees the size of a setup's information as well as its direction.
 """
 from __future__ import annotations
 
@@ -39,6 +44,7 @@ from similarity.belief import psd_projection
 from similarity.fd_hessian import hessian_from_stencil
 
 STEP = 0.05  # the FD step in the normalised material space (docs/landscapes.md, step study)
+GRID_MM = (20.0, 37.0, 53.0, 70.0)  # widths and heights of the setups the ``information`` criterion simulates
 RIDGE = 1e-2  # eps = RIDGE x lambda_max(H_done)
 
 
@@ -135,7 +141,7 @@ def stencil_losses(truth, setups, *, preset, fd_step: float, forward, tick=None)
     from similarity.emulation import emulate, probe_losses
     from similarity.fd_hessian import stencil
 
-    shots = emulate(truth, setups, preset=preset, forward=forward)
+    shots = emulate(truth, setups, preset=preset, forward=forward, on_result=tick)
     return probe_losses([(truth, e) for e in shots], stencil(fd_step), preset.final, forward, tick)
 
 
@@ -149,3 +155,33 @@ def realised_gains(h_done, hessians, measure: str = "gain") -> np.ndarray:
     ok = np.array([h is not None for h in hessians])
     stack = np.array([h if h is not None else np.eye(3) for h in hessians], float).reshape(-1, 3, 3)
     return np.where(ok, MEASURES[measure](np.asarray(h_done, float), stack), np.nan)
+
+
+def grid_setups(values_mm=GRID_MM) -> list:
+    """The setups the ``information`` criterion chooses from: every (width, height) of ``values_mm``, height outer
+    and width inner (the order of :func:`similarity.space.candidate_setups`)."""
+    from mpm.params import Setup
+
+    return [Setup(float(w), float(h)) for h in values_mm for w in values_mm]
+
+
+def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float = STEP, tick=None) -> np.ndarray:
+    """The log det gain (:func:`log_det_gain`) of each of ``setups`` after the setups ``done``, from the FD
+    Hessians at ``estimate`` on footage emulated there (module docstring): 19 simulations per setup, done ones
+    included.  NaN for a setup whose simulations failed; ValueError when a done setup's did, or when the setups
+    done carry no information at the estimate."""
+    from mpm.params import Material
+    from similarity.space import denormalize, normalize
+
+    done, setups = list(done), list(setups)
+    # an estimate on a face of the space moves inward by the step, so that every probe is a material of the space
+    estimate = Material.from_array(denormalize(np.clip(normalize(estimate.as_array()), fd_step, 1.0 - fd_step)))
+    try:
+        losses = stencil_losses(estimate, done + setups, preset=preset, fd_step=fd_step, forward=forward, tick=tick)
+    except RuntimeError as exc:  # the footage emulated at the estimate failed in some setup
+        raise ValueError(f"cannot score setups at {estimate}: {str(exc).splitlines()[0]}") from None
+    hessians = setup_hessians(losses, fd_step)
+    if any(h is None for h in hessians[:len(done)]):
+        raise ValueError(f"a simulation of a done setup's stencil around {estimate} failed, so its information is "
+                         "unknown")
+    return realised_gains(np.sum(hessians[:len(done)], axis=0), hessians[len(done):])

@@ -109,7 +109,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder.
     ``forward``: the store and executor that simulate (default: the run's store, in this process)."""
     from mpm.files import digest
-    from similarity.design import expected_information_gain, rank_setups
+    from similarity.design import SIMULATION_PRESET, expected_information_gain, rank_by_simulation, rank_setups
     from similarity.ellipsoid import alignment, ellipsoid
     from similarity.fd_hessian import fd_hessian
     from similarity.estimate import simulated_frames
@@ -210,6 +210,13 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                      if len(perp) == len(eig) else None}
     except ValueError as exc:
         next_eig, next_perp = [], {"error": str(exc)}
+    say(f"next setup by simulated information ({SIMULATION_PRESET} preset's model)")
+    try:
+        info = rank_by_simulation(m_mean, run.setups, preset=SIMULATION_PRESET, forward=run.forward)
+        best, gain = info.best()
+        next_info = {"setup": str(best), "log_det_gain": gain, "eig_nats": 0.5 * gain, "preset": SIMULATION_PRESET}
+    except ValueError as exc:
+        next_info = {"error": str(exc).splitlines()[0]}
     summary = PosteriorSummary(
         estimate=run.estimate, estimate_normalised=x_hat.tolist(), setups=[str(s) for s in run.setups], noise=noise,
         emulator=EmulatorSummary(**validation.to_dict(), trust_region=[lo.tolist(), hi.tolist()],
@@ -217,7 +224,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         posterior=PosteriorStats.from_dict(post.summary()),
         truth=truth, truth_normalised=None if truth is None else normalize(truth.as_array()).tolist(),
         ellipsoid_posterior=ell, ellipsoid_laplace=laplace, normals=normals, flow_band=band, eig_grid=eig_grid,
-        next_setups_eig=next_eig, next_setup_perpendicular=next_perp)
+        next_setups_eig=next_eig, next_setup_perpendicular=next_perp, next_setup_information=next_info)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     write_json(run.folder / "posterior.json", summary)
     return Analysis(run, post, noise, emu, summary, frames, log_prob)

@@ -81,9 +81,12 @@ class PosteriorSummary(JsonRecord):
     eig_grid: list | None = None  # EIG [nats] over the setup grid (rows: heights)
     next_setups_eig: list  # the ten best next setups: {"setup", "eig_nats"}
     next_setup_perpendicular: dict  # {"setup", "score", "eig_nats"}, or {"error"}
+    # simulated information (similarity.design.rank_by_simulation): {"setup", "log_det_gain", "eig_nats", "preset"},
+    # or {"error"}; None in files written before it
+    next_setup_information: dict | None = None
     rheometer_band_coverage: float | None = None  # set by the HTML report when given a rheometer curve
 
-    OMIT_IF_NONE = ("truth", "truth_normalised", "eig_grid", "rheometer_band_coverage")
+    OMIT_IF_NONE = ("truth", "truth_normalised", "eig_grid", "rheometer_band_coverage", "next_setup_information")
     READERS = {"estimate": _material, "truth": _material, "noise": NoiseScale.from_dict,
                "emulator": EmulatorSummary.from_dict, "posterior": PosteriorStats.from_dict,
                "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict}

@@ -9,7 +9,9 @@ Materials: a scrambled Sobol design over 5..95 % of the normalised space with on
    what every criterion sees;
 2. **each criterion's pick** over the full 51 x 51 grid from that estimate: ``eig`` (expected information gain
    under stage 1's archive belief, published Theta map), ``perpendicularity-fitted`` and
-   ``perpendicularity-reference`` (section 6 with our fitted and the published Theta map), and two baselines that
+   ``perpendicularity-reference`` (section 6 with our fitted and the published Theta map); ``information`` picks
+   among its 16 setups (:func:`similarity.information.grid_setups`) by the simulated log det gain at the estimate
+   (:func:`similarity.information.predicted_gains`), and predicts every candidate the same way; two baselines that
    `virheo design` does not offer: ``random`` and ``largest`` (the 70 x 70 mm box, predicting by the area W x H);
    a criterion that cannot rank (Theta's plane-Poiseuille model does not flow) takes the random pick, and the
    record says so;
@@ -55,7 +57,8 @@ from studies.study import Study, tell
 # name -> (criterion of similarity.design.rank_setups, Theta map); the baselines "random" and "largest"
 # (:data:`studies.design_validation.LARGEST`, other than the first) are not offered by `virheo design`
 CRITERIA = {"eig": ("eig", "reference"), "perpendicularity-fitted": ("perpendicularity", "fitted"),
-            "perpendicularity-reference": ("perpendicularity", "reference"), "random": None, "largest": None}
+            "perpendicularity-reference": ("perpendicularity", "reference"), "information": ("information", None),
+            "random": None, "largest": None}
 DEFAULT_CRITERION = "perpendicularity-reference"  # what `virheo design` uses without options
 MEASURE_LABELS = {"gain": "log det gain", "gain_min_eig": "smallest-eigenvalue gain",
                   "gain_shape": "log det gain of the direction alone (trace scaled to setup 1's)"}
@@ -87,7 +90,7 @@ def _rank(name, estimate, first, covariance, thetas):
     from similarity.design import rank_setups
 
     how = CRITERIA[name]
-    if how is None:
+    if how is None or how[0] == "information":  # the simulated criterion ranks in run_case
         return None, None
     criterion, theta = how
     try:
@@ -102,11 +105,29 @@ def _largest(first: Setup) -> Setup:
     return LARGEST if str(first) != str(LARGEST) else Setup(LARGEST.width_mm, LARGEST.height_mm - 1.0)
 
 
+def _simulated(estimate, first, cands, *, config, preset, forward, tick):
+    """The ``information`` criterion: (pick among its grid, predicted gain by setup name, why it fell back)."""
+    grid = I.grid_setups()
+    names = {str(g) for g in grid}
+    setups = grid + [c for c in cands if str(c) not in names]
+    try:
+        gains = I.predicted_gains(estimate, [first], setups, preset=preset, fd_step=config["fd_step"],
+                                  forward=forward, tick=tick)
+    except ValueError as exc:
+        return None, {}, str(exc).splitlines()[0]
+    predicted = {str(s): float(g) for s, g in zip(setups, gains) if np.isfinite(g)}
+    if not np.isfinite(gains[:len(grid)]).any():
+        return None, predicted, "every simulation of its grid failed"
+    return grid[int(np.nanargmax(gains[:len(grid)]))], predicted, None
+
+
 def _predicted(ranking, setups, name: str = "") -> list:
     """The ranking's predicted information (higher = better) of each setup; None where it has none ("largest":
-    the setup's area)."""
+    the setup's area; "information": the ranking is the dict of predicted gains by setup name)."""
     if name == "largest":
         return [s.width_mm * s.height_mm for s in setups]
+    if isinstance(ranking, dict):
+        return [ranking.get(str(s)) for s in setups]
     if ranking is None:
         return [None] * len(setups)
     sign = 1.0 if ranking.criterion == "eig" else -1.0  # S_p: lower is better
@@ -135,7 +156,7 @@ def run_case(case: DesignCase, *, config: dict, forward, thetas, tick=None) -> I
         covariance, belief_note = None, str(exc).splitlines()[0]
     random_pick = Random([config["seed"], index])(est.material, [first])
     rankings, picks, fallbacks = {}, {}, {}
-    for name in config["criteria"]:
+    for name in (n for n in config["criteria"] if n != "information"):
         rankings[name], why = _rank(name, est.material, first, covariance, thetas)
         picks[name] = (rankings[name].best()[0] if rankings[name] is not None
                        else _largest(first) if name == "largest" else random_pick)
@@ -146,6 +167,14 @@ def run_case(case: DesignCase, *, config: dict, forward, thetas, tick=None) -> I
     for s in picks.values():
         if str(s) not in {str(c) for c in cands}:
             cands.append(s)
+    if "information" in config["criteria"]:
+        pick, rankings["information"], why = _simulated(est.material, first, cands, config=config, preset=preset,
+                                                         forward=forward, tick=tick)
+        picks["information"] = pick if pick is not None else random_pick
+        if why is not None:
+            fallbacks["information"] = why
+        if str(picks["information"]) not in {str(c) for c in cands}:
+            cands.append(picks["information"])
     losses = I.stencil_losses(truth, [first] + cands, preset=preset, fd_step=config["fd_step"], forward=forward,
                               tick=tick)
     hessians = I.setup_hessians(losses, config["fd_step"])

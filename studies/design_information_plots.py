@@ -11,7 +11,7 @@ from similarity.information import last_where_ruled_out
 from studies.report import save_figure
 
 COLOURS = {"eig": "tab:red", "perpendicularity-fitted": "tab:green", "perpendicularity-reference": "tab:blue",
-           "random": "0.45", "largest": "tab:orange"}
+           "information": "tab:purple", "random": "0.45", "largest": "tab:orange"}
 
 
 def plot_predicted(path, recs: list) -> Path:

@@ -56,9 +56,10 @@ def shipped_summary(summ, config: dict) -> DesignValidation:
 
 
 def validation(criterion: str, theta: str, path=SUMMARY_FILE) -> dict | None:
-    """The shipped held-out figures of ``criterion`` ("perpendicularity" or "eig") with Theta map ``theta``
-    ("reference", "fitted"), as validated; None when that combination was not validated (a custom map)."""
-    name = "eig" if criterion == "eig" and theta == "reference" else (
+    """The shipped held-out figures of ``criterion`` ("information", "perpendicularity" or "eig") with Theta map
+    ``theta`` ("reference", "fitted"; "information" uses none), as validated; None when that combination was not
+    validated (a custom map)."""
+    name = "information" if criterion == "information" else "eig" if criterion == "eig" and theta == "reference" else (
         f"perpendicularity-{theta}" if criterion == "perpendicularity" else None)
     if name is None or not Path(path).is_file():
         return None

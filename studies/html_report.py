@@ -243,6 +243,14 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
 
     reliability = (f"<p>EIG ranking, {'<br>'.join(map(e, reliability_line(validation('eig', 'reference')).splitlines()))}"
                    ".</p>" if nexts else "")
+    info = summary.next_setup_information or {}
+    if info.get("setup"):
+        info_line = "<br>".join(map(e, reliability_line(validation("information", "reference")).splitlines()))
+        reliability += (f"<p>Setup of largest simulated information (the loss Hessians of 16 setups simulated at "
+                        f"the posterior mean, {e(info['preset'])} preset's model): <b>{e(info['setup'])}</b> mm, "
+                        f"{info['eig_nats']:.4f} nats. {info_line}.</p>")
+    elif info.get("error"):
+        reliability += f"<p>Simulated information: not available ({e(info['error'])}).</p>"
     rheo = ""
     if rheometer is not None:
         rheo = (f"<p>Rheometer curve: {e(rheometer.name)}; {100 * coverage:.0f} % of its points between 1 and "

@@ -14,7 +14,7 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def test_design_text(capsys):
-    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59"]) == 0
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--criterion", "perpendicularity"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("next setup: 32x20 mm")
     assert "S_p = 0.98" in out
@@ -22,7 +22,8 @@ def test_design_text(capsys):
 
 def test_design_json_and_plot(tmp_path, capsys):
     png = tmp_path / "sp.png"
-    assert main(["design", "--material", "3,0.5,3", "--done", "20x20", "--done", "70x70", "--json", "--plot", str(png)]) == 0
+    assert main(["design", "--material", "3,0.5,3", "--done", "20x20", "--done", "70x70", "--json", "--plot", str(png),
+                 "--criterion", "perpendicularity"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["next"] == {"width_mm": 41.0, "height_mm": 20.0}
     assert 0 < data["score"] <= 2**0.5 and data["valid_candidates"] == 2601
@@ -34,7 +35,8 @@ def test_design_with_saved_theta_file(tmp_path, capsys):
     from surrogate.theta import load
 
     path = load("reference").save(tmp_path / "theta.json")
-    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path)]) == 0
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path),
+                 "--criterion", "perpendicularity"]) == 0
     assert capsys.readouterr().out.startswith("next setup: 32x20 mm")
 
 
@@ -77,7 +79,7 @@ def test_design_prints_the_expected_gain_and_the_shipped_reliability(capsys):
 
     shipped = json.loads(SUMMARY_FILE.read_text())
     v = shipped["criteria"]["perpendicularity-reference"]  # the default: perpendicularity, published Theta map
-    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59"]) == 0
+    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--criterion", "perpendicularity"]) == 0
     out = capsys.readouterr().out
     assert (f"within {100 * shipped['within']:.0f} % of the best candidate in {v['within']} of {v['materials']} "
             f"validation materials, better than the candidates' mean in {v['beats_mean']} of {v['materials']}") in out
@@ -96,8 +98,38 @@ def test_design_with_a_custom_theta_is_not_validated(tmp_path, capsys):
     from surrogate.theta import load
 
     path = load("reference").save(tmp_path / "theta.json")
-    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path)]) == 0
+    argv = ["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path), "--criterion",
+            "perpendicularity"]
+    assert main(argv) == 0
     assert "reliability: not validated" in capsys.readouterr().out
-    assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--theta", str(path), "--json"]) == 0
+    assert main(argv + ["--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["validation"] is None and data["reliability"].startswith("reliability: not validated")
+
+
+def test_design_information_simulates_its_grid_and_picks_its_best_gain(tmp_path, monkeypatch, capsys):
+    """--criterion information: 16 grid setups + the done one, 19 simulations each (fake model), the pick is the grid
+    setup of largest predicted gain, a second run is served by the store, and the gain printed is the pick's."""
+    from similarity.information import grid_setups
+
+    monkeypatch.syspath_prepend(str(REPO / "tests"))
+    monkeypatch.setenv("VIRHEO_SIMULATOR", "fake_forward:simulate")
+    argv = ["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--criterion", "information",
+            "--workers", "0", "--store", str(tmp_path / "store"), "--json", "--plot", str(tmp_path / "g.png")]
+    assert main(argv) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["simulations"] == 17 * 19 and data["valid_candidates"] == 16
+    best = data["next"]
+    assert any(s.width_mm == best["width_mm"] and s.height_mm == best["height_mm"] for s in grid_setups())
+    assert data["expected_gain_nats"] == pytest.approx(0.5 * data["score"]) and data["score"] > 0
+    assert (tmp_path / "g.png").stat().st_size > 5000
+    assert main(argv) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert again["simulations"] == 0 and again["next"] == best and again["score"] == data["score"]
+
+
+def test_design_information_bad_workers_is_one_line(capsys):
+    assert main(["design", "--material", "3,0.5,3", "--done", "29x59", "--criterion", "information",
+                 "--workers", "-1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--workers -1" in err

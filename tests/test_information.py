@@ -67,3 +67,52 @@ def test_rank_agreement():
     assert I.rank_agreement(r, 3 * r + 1) == pytest.approx(1.0)
     assert I.rank_agreement(-r, r) == pytest.approx(-1.0)
     assert np.isnan(I.rank_agreement([1.0, 1.0, 1.0], r[:3]))
+
+
+@pytest.fixture
+def fake_forward(monkeypatch):
+    import sys
+    from pathlib import Path
+
+    from mpm.forward import Forward
+
+    tests = str(Path(__file__).resolve().parent)
+    if tests not in sys.path:
+        monkeypatch.syspath_prepend(tests)
+    with Forward(None, workers=0, simulator="fake_forward:simulate") as fw:
+        yield fw
+
+
+def test_predicted_gain_at_the_truth_is_the_realised_gain_and_a_repeat_adds_a_known_amount(fake_forward):
+    """Predicted at the estimate = realised when the estimate is the truth (the same simulations); filming the done
+    setup again doubles its Hessian, so its gain is sum log((2 lambda + eps) / (lambda + eps)) over H's eigenvalues."""
+    from mpm.params import Material, Setup
+    from similarity.presets import get_preset
+
+    truth, first = Material(4.0, 0.6, 8.0), Setup(29.0, 59.0)
+    others = [Setup(70.0, 70.0), Setup(20.0, 20.0)]
+    preset = get_preset("demo")
+    pred = I.predicted_gains(truth, [first], [first] + others, preset=preset, forward=fake_forward)
+    hs = I.setup_hessians(I.stencil_losses(truth, [first] + others, preset=preset, fd_step=I.STEP,
+                                           forward=fake_forward))
+    np.testing.assert_allclose(pred[1:], I.realised_gains(hs[0], hs[1:]), rtol=1e-12)
+    lam = np.linalg.eigvalsh(hs[0])
+    eps = I.RIDGE * lam[-1]
+    assert pred[0] == pytest.approx(np.sum(np.log((2 * lam + eps) / (lam + eps))), rel=1e-9)
+    assert np.all(np.isfinite(pred)) and np.all(pred > 0)
+
+
+def test_an_estimate_on_a_face_of_the_space_is_moved_inward_by_the_step(fake_forward):
+    """Every probe of the stencil must be a material of the space: an estimate with sigma_y = 0 (a face) is scored
+    as the material one step inside it."""
+    from mpm.params import Material, Setup
+    from similarity.presets import get_preset
+    from similarity.space import denormalize, normalize
+
+    face = Material(4.0, 0.6, 0.0)
+    u = normalize(face.as_array())
+    inside = Material.from_array(denormalize(np.clip(u, I.STEP, 1 - I.STEP)))
+    kw = dict(preset=get_preset("demo"), forward=fake_forward)
+    setups = [Setup(70.0, 70.0), Setup(40.0, 20.0)]
+    np.testing.assert_array_equal(I.predicted_gains(face, [Setup(29.0, 59.0)], setups, **kw),
+                                  I.predicted_gains(inside, [Setup(29.0, 59.0)], setups, **kw))

@@ -5,15 +5,22 @@ import json
 from pathlib import Path
 
 EXAMPLE = "virheo design --material 3.14,0.74,1.24 --done 29x59"
+CRITERIA = ("information", "perpendicularity", "eig")
+DEFAULT_CRITERION = "information"
 
 
 def register(subparsers) -> None:
+    from studies.commands.context import PRESET_NAMES, integer
+
     p = subparsers.add_parser(
         "design",
-        help="propose the next dam-break setup from the current estimate (no simulation)",
-        description="Propose the next dam-break setup: among the 2601 candidates (width and height 20..70 mm in "
-        "1 mm steps) the one whose loss normal is most perpendicular to the normals of the setups already done "
-        "(score S_p, lower is better; Algorithm 2 with the plane-Poiseuille Hessian and the Theta map). "
+        help="propose the next dam-break setup from the current estimate",
+        description="Propose the next dam-break setup. --criterion information (default): among 16 setups "
+        "(width and height 20, 37, 53, 70 mm) the one whose simulated loss Hessian at the estimate adds the most "
+        "information to the setups already done (log det gain; 19 simulations per setup at the preset's model, "
+        "a minute or two on a laptop). --criterion perpendicularity: among the 2601 candidates (20..70 mm in 1 mm "
+        "steps) the one whose loss normal is most perpendicular to the normals of the setups done (score S_p, "
+        "lower is better; Algorithm 2 with the plane-Poiseuille Hessian and the Theta map), no simulation. "
         f"Units: material in SI (eta in Pa s^n, n dimensionless, sigma_y in Pa); setups WxH in millimetres "
         f"(width along the flow, then height). Example: {EXAMPLE}",
     )
@@ -29,9 +36,17 @@ def register(subparsers) -> None:
                    help="write a heat map of S_p over the (W, H) grid in mm with the done and chosen setups marked "
                    "(.png is added to a name without a suffix)")
     p.add_argument("--json", action="store_true", help="print the result as JSON instead of text")
-    p.add_argument("--criterion", default="perpendicularity", choices=("perpendicularity", "eig"),
-                   help="perpendicularity S_p (section 6, default) or eig: expected information gain in nats "
-                   "(linear-Gaussian approximation, docs/uncertainty.md)")
+    p.add_argument("--criterion", default=DEFAULT_CRITERION, choices=CRITERIA,
+                   help="information: simulated log det gain at the estimate (default); perpendicularity: S_p "
+                   "(section 6); eig: expected information gain in nats (linear-Gaussian approximation with the "
+                   "Theta map); docs/uncertainty.md compares them")
+    p.add_argument("--preset", default=None, choices=PRESET_NAMES,
+                   help="information: the preset whose final model simulates (default demo: 5 mm cells)")
+    p.add_argument("--workers", type=integer, default=None, metavar="K",
+                   help="information: local worker processes (default: one per CPU core; 0: in this process)")
+    p.add_argument("--store", default=None, metavar="PATH",
+                   help="information: simulation store folder to reuse and fill (default: RUN/store with "
+                   "--posterior RUN, else none)")
     p.add_argument("--posterior", default=None, metavar="RUN",
                    help="run folder with posterior.json (virheo report): its posterior mean, covariance and setups "
                    "replace --material and --done")
@@ -67,19 +82,26 @@ def run(args) -> int:
         if not plot_path.resolve().parent.is_dir():
             raise ValueError(f"--plot: folder {plot_path.resolve().parent} does not exist")
     theta = load(args.theta)
-    ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
+    simulations = 0
+    if args.criterion == "information":
+        ranking, simulations = simulated_ranking(material, done, args)
+    else:
+        ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
     best, score = ranking.best()
     gain, gain_note = expected_gain(ranking, best, material, done, theta, covariance)
-    # the study validated the packaged maps only: a custom one is "not validated"
-    validated = validation(args.criterion, args.theta) if args.theta in ("reference", "fitted") else None
+    # the study validated the packaged maps only: a custom one is "not validated" (information uses no map)
+    validated = (validation(args.criterion, args.theta)
+                 if args.criterion == "information" or args.theta in ("reference", "fitted") else None)
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
     if args.json:
         print(json.dumps({
             "material": material.to_dict(),
             "done": [s.to_dict() for s in done],
-            "theta": theta.name,
+            "theta": None if args.criterion == "information" else theta.name,
             "criterion": args.criterion,
+            "preset": args.preset if args.criterion == "information" else None,
+            "simulations": simulations,
             "next": best.to_dict(),
             "score": score,
             "expected_gain_nats": gain,
@@ -89,11 +111,16 @@ def run(args) -> int:
             "plot": str(plot_path) if plot_path else None,
         }, indent=1))
     else:
-        label = "S_p" if args.criterion == "perpendicularity" else "expected information gain [nats]"
+        label = {"perpendicularity": "S_p", "eig": "expected information gain [nats]",
+                 "information": "predicted log det gain"}[args.criterion]
         print(f"next setup: {best} mm (width x height), {label} = {score:.6f}")
+        how = (f"{simulations} simulations with the {args.preset} preset's model" if args.criterion == "information"
+               else f"Theta map: {theta.name}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
-              f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; Theta map: {theta.name}")
-        print("  expected gain: " + (f"{gain:.3f} nats (expected information gain, linear-Gaussian model)"
+              f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; {how}")
+        model = ("linear-Gaussian model with the simulated loss Hessians" if args.criterion == "information"
+                 else "linear-Gaussian model")
+        print("  expected gain: " + (f"{gain:.3f} nats (expected information gain, {model})"
                                      if gain is not None else f"not available ({gain_note})"))
         print("  " + reliability_line(validated))
         if plot_path:
@@ -101,11 +128,39 @@ def run(args) -> int:
     return 0
 
 
+def simulated_ranking(material, done, args):
+    """(the ``information`` ranking, simulations run): the simulator's information at ``material``."""
+    import warnings
+
+    from mpm.forward import Forward
+    from similarity.design import SIMULATION_PRESET, rank_by_simulation
+    from studies.commands.context import check_engine, report_data_losses, simulator
+
+    if args.workers is not None and args.workers < 0:
+        raise ValueError(f"--workers {args.workers} must be >= 0 (0: simulate in this process)")
+    if args.store is not None and Path(args.store).exists() and not Path(args.store).is_dir():
+        raise ValueError(f"--store {args.store} is a file, not a folder: name a folder")
+    check_engine()
+    count = [0]
+
+    def tick(req, res, cached):
+        count[0] += not cached
+
+    store = args.store if args.store is not None else (Path(args.posterior) / "store" if args.posterior else None)
+    with warnings.catch_warnings():
+        report_data_losses()
+        with Forward(store, workers=args.workers, simulator=simulator()) as forward:
+            args.preset = args.preset or SIMULATION_PRESET
+            return rank_by_simulation(material, done, preset=args.preset, forward=forward, tick=tick), count[0]
+
+
 def expected_gain(ranking, best, material, done, theta, covariance) -> tuple[float | None, str | None]:
-    """(EIG in nats of the chosen setup, why not): the ranking's own score for ``eig``, else the EIG ranking's
-    value at the chosen setup."""
+    """(expected information gain in nats of the chosen setup, why not): the ranking's own score for ``eig``, half
+    the log det gain for ``information``, else the EIG ranking's value at the chosen setup."""
     from similarity.design import rank_setups
 
+    if ranking.criterion == "information":  # EIG = 1/2 log det(I + Sigma F) = half the log det gain
+        return 0.5 * float(ranking.best()[1]), None
     if ranking.criterion == "eig":
         return float(ranking.best()[1]), None
     try:
@@ -126,11 +181,16 @@ def plot(ranking, best, path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    grid = ranking.grid()
     fig, ax = plt.subplots(figsize=(5.6, 5.0), dpi=120)
-    im = ax.imshow(grid, origin="lower", extent=(19.5, 70.5, 19.5, 70.5), cmap="viridis", interpolation="nearest")
-    fig.colorbar(im, ax=ax, label="perpendicularity score $S_p$ (lower is better)" if ranking.criterion != "eig"
-                 else "expected information gain [nats] (higher is better)")
+    if ranking.criterion == "information":  # 16 setups: one square each
+        im = ax.scatter(ranking.width_mm, ranking.height_mm, c=ranking.score, s=700, marker="s", cmap="viridis")
+        ax.set(xlim=(12, 78), ylim=(12, 78))
+    else:
+        im = ax.imshow(ranking.grid(), origin="lower", extent=(19.5, 70.5, 19.5, 70.5), cmap="viridis",
+                       interpolation="nearest")
+    fig.colorbar(im, ax=ax, label={"perpendicularity": "perpendicularity score $S_p$ (lower is better)",
+                                   "eig": "expected information gain [nats] (higher is better)",
+                                   "information": "predicted log det gain (higher is better)"}[ranking.criterion])
     for s in ranking.done:
         ax.plot(s.width_mm, s.height_mm, "X", color="w", mec="k", ms=11, ls="none", clip_on=False,
                 label="done" if s is ranking.done[0] else None)

@@ -66,6 +66,15 @@ def run(args: argparse.Namespace) -> int:
 
         print(f"next setup by expected information gain: {nxt[0]['setup']} mm ({nxt[0]['eig_nats']:.3f} nats)")
         print("  " + reliability_line(validation("eig", "reference")))
+    info = summary.next_setup_information or {}
+    if info.get("setup"):
+        from studies.design_validation import reliability_line, validation
+
+        print(f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats, "
+              f"{info['preset']} preset's model)")
+        print("  " + reliability_line(validation("information", "reference")))
+    elif info.get("error"):
+        print(f"next setup by simulated information: not available ({info['error']})")
     if summary.rheometer_band_coverage is not None:
         print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * summary.rheometer_band_coverage:.0f} %")
     print(f"report: {page}")
