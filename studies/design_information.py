@@ -51,7 +51,7 @@ from studies.design_information_plots import plot_maps, plot_predicted
 from studies.design_information_records import (CriterionScores, InformationRecord, InformationSummary, MeasureScores,
                                                 StageOne, Verdict)
 from studies.design_study import DesignCase, case_folder, case_seed
-from studies.design_validation import LARGEST, WITHIN, shipped_summary
+from studies.design_validation import DEFAULT_CRITERION, LARGEST, WITHIN, shipped_summary
 from studies.study import Study, tell
 
 # name -> (criterion of similarity.design.rank_setups, Theta map); the baselines "random" and "largest"
@@ -59,7 +59,6 @@ from studies.study import Study, tell
 CRITERIA = {"eig": ("eig", "reference"), "perpendicularity-fitted": ("perpendicularity", "fitted"),
             "perpendicularity-reference": ("perpendicularity", "reference"), "information": ("information", None),
             "random": None, "largest": None}
-DEFAULT_CRITERION = "perpendicularity-reference"  # what `virheo design` uses without options
 MEASURE_LABELS = {"gain": "log det gain", "gain_min_eig": "smallest-eigenvalue gain",
                   "gain_shape": "log det gain of the direction alone (trace scaled to setup 1's)"}
 

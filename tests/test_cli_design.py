@@ -78,7 +78,7 @@ def test_design_prints_the_expected_gain_and_the_shipped_reliability(capsys):
     from studies.design_validation import SUMMARY_FILE
 
     shipped = json.loads(SUMMARY_FILE.read_text())
-    v = shipped["criteria"]["perpendicularity-reference"]  # the default: perpendicularity, published Theta map
+    v = shipped["criteria"]["perpendicularity-reference"]  # the paper's criterion: perpendicularity, published map
     assert main(["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--criterion", "perpendicularity"]) == 0
     out = capsys.readouterr().out
     assert (f"within {100 * shipped['within']:.0f} % of the best candidate in {v['within']} of {v['materials']} "
@@ -114,7 +114,7 @@ def test_design_information_simulates_its_grid_and_picks_its_best_gain(tmp_path,
 
     monkeypatch.syspath_prepend(str(REPO / "tests"))
     monkeypatch.setenv("VIRHEO_SIMULATOR", "fake_forward:simulate")
-    argv = ["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--criterion", "information",
+    argv = ["design", "--material", "3.142,0.7394,1.243", "--done", "29x59",  # the default criterion
             "--workers", "0", "--store", str(tmp_path / "store"), "--json", "--plot", str(tmp_path / "g.png")]
     assert main(argv) == 0
     data = json.loads(capsys.readouterr().out)
@@ -123,6 +123,12 @@ def test_design_information_simulates_its_grid_and_picks_its_best_gain(tmp_path,
     assert any(s.width_mm == best["width_mm"] and s.height_mm == best["height_mm"] for s in grid_setups())
     assert data["expected_gain_nats"] == pytest.approx(0.5 * data["score"]) and data["score"] > 0
     assert (tmp_path / "g.png").stat().st_size > 5000
+    # the shipped held-out figures of the simulated criterion, which proved strong
+    from studies.design_validation import SUMMARY_FILE
+
+    v = json.loads(SUMMARY_FILE.read_text())["criteria"]["information"]
+    assert data["criterion"] == "information" and data["validation"]["within"] == v["within"]
+    assert v["sign_test_p"] < 0.05 and "weak" not in data["reliability"]
     assert main(argv) == 0
     again = json.loads(capsys.readouterr().out)
     assert again["simulations"] == 0 and again["next"] == best and again["score"] == data["score"]

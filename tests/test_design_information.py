@@ -52,6 +52,11 @@ def test_tiny_study_scores_follow_from_the_stencils_and_resume_without_simulatin
         seeded = cands[:c["seeded"]]
         assert c["seeded"] == 3 and len(set(seeded)) == 3 and c["first_setup"] not in cands
         assert set(c["picks"].values()) <= set(cands) and len(set(cands)) == len(cands)
+        # the simulated criterion picks among its grid and predicts every candidate
+        assert c["picks"]["information"] in {str(g) for g in I.grid_setups()} and "information" not in c["fallbacks"]
+        assert all(p is not None and np.isfinite(p) for p in c["predicted"]["information"])
+        pred = dict(zip(cands, c["predicted"]["information"]))
+        assert pred[c["picks"]["information"]] == max(pred[str(g)] for g in I.grid_setups() if str(g) in pred)
         assert all(Setup.parse(s).in_space() for s in cands)
         # the gains are the log det gains of the PSD-projected FD Hessians of the stored stencil losses
         h = [I.setup_hessian(np.array(row, float), c["config"]["fd_step"]) for row in c["stencil_losses"]]
@@ -76,7 +81,7 @@ def test_tiny_study_scores_follow_from_the_stencils_and_resume_without_simulatin
     assert s["recommended"] == (best if s["gain"]["selection"][best]["median_score"] > 0 else None)
     assert res["shipped"]["criteria"]["eig"]["materials"] == 1
     assert (out / "predicted_vs_realised.png").stat().st_size > 5000 and (out / "maps.png").stat().st_size > 5000
-    assert "default criterion perpendicularity-reference on the held-out materials" in stdout
+    assert "default criterion information on the held-out materials" in stdout
     # a killed run: the finished materials, map and posterior check are read back, a lost case.json comes from the store
     before = _cases(out)
     (out / "cases" / "case_01" / "case.json").unlink()

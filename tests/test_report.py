@@ -68,6 +68,18 @@ def test_posterior_summary_is_coherent(reported):
     lengths = s["ellipsoid_posterior"]["lengths"]
     assert lengths == sorted(lengths) and lengths[0] > 0
     assert s["next_setups_eig"] and s["next_setups_eig"][0]["eig_nats"] >= s["next_setups_eig"][-1]["eig_nats"]
+    # the simulated criterion: a setup of its grid, its gain in nats half the log det gain
+    from similarity.information import grid_setups
+    info = s["next_setup_information"]
+    assert info["setup"] in {str(g) for g in grid_setups()} and info["preset"] == "demo"
+    assert info["eig_nats"] == pytest.approx(0.5 * info["log_det_gain"]) and info["log_det_gain"] > 0
+
+
+def test_report_prints_the_simulated_next_setup(reported):
+    run, proc = reported
+    info = json.loads((run / "posterior.json").read_text())["next_setup_information"]
+    assert f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats" in proc.stdout
+    assert "Setup of largest simulated information" in (run / "report" / "index.html").read_text()
 
 
 def test_design_from_the_posterior(reported, capsys):

@@ -6,11 +6,11 @@ from pathlib import Path
 
 EXAMPLE = "virheo design --material 3.14,0.74,1.24 --done 29x59"
 CRITERIA = ("information", "perpendicularity", "eig")
-DEFAULT_CRITERION = "information"
 
 
 def register(subparsers) -> None:
     from studies.commands.context import PRESET_NAMES, integer
+    from studies.design_validation import DEFAULT_CRITERION
 
     p = subparsers.add_parser(
         "design",
