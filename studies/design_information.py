@@ -235,7 +235,9 @@ def summary(recs: list[InformationRecord]) -> InformationSummary:
             recommended = best
     verdicts = {}
     if held:
-        for key, name in (("default", DEFAULT_CRITERION), ("recommended", recommended)):
+        # a run from before the simulated criterion judged the default of its time, the paper's criterion
+        default = DEFAULT_CRITERION if DEFAULT_CRITERION in names else "perpendicularity-reference"
+        for key, name in (("default", default), ("recommended", recommended)):
             if name is not None:
                 verdicts[f"verdict_{key}"] = _verdict(name, measures["gain"].held_out[name])
     seeded = [float(np.nanmedian(r.realised()[:r.seeded])) for r in held]

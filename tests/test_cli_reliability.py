@@ -67,7 +67,8 @@ def test_plot_that_is_a_folder(capsys, tmp_path):
 
 
 def test_plot_reports_the_file_it_wrote(capsys, tmp_path):
-    assert main(["design", "--material", "3,0.5,3", "--done", "29x59", "--plot", str(tmp_path / "heat")]) == 0
+    assert main(["design", "--material", "3,0.5,3", "--done", "29x59", "--plot", str(tmp_path / "heat"), "--criterion",
+                 "perpendicularity"]) == 0
     out = capsys.readouterr().out
     assert f"heat map written to {tmp_path / 'heat.png'}" in out
     assert (tmp_path / "heat.png").read_bytes()[:4] == b"\x89PNG" and not (tmp_path / "heat").exists()

@@ -176,7 +176,8 @@ def test_theta_map_with_wrong_coefficient_count_exits_2(tmp_path, capsys):
 
 def test_design_uses_a_fitted_map_file(tmp_path, capsys):
     path = load("reference").save(tmp_path / "same.json")
-    assert main(["design", "--material", "3.14,0.74,1.24", "--done", "29x59", "--theta", str(path), "--json"]) == 0
+    assert main(["design", "--material", "3.14,0.74,1.24", "--done", "29x59", "--theta", str(path), "--json",
+                 "--criterion", "perpendicularity"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["next"] == {"width_mm": 32.0, "height_mm": 20.0}
 
@@ -185,6 +186,11 @@ def test_packaged_fitted_map_loads_and_designs(capsys):
     fitted = load("fitted")
     assert isinstance(fitted, ThetaMap) and fitted.name == "fitted" and fitted.theta.shape == (66,)
     assert not np.array_equal(fitted.theta, load("reference").theta)
-    assert main(["design", "--material", "9.82,0.705,12.9", "--done", "64x37", "--theta", "fitted", "--json"]) == 0
+    assert main(["design", "--material", "9.82,0.705,12.9", "--done", "64x37", "--theta", "fitted", "--json",
+                 "--criterion", "perpendicularity"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["theta"] == "fitted" and 20 <= out["next"]["width_mm"] <= 70
+    # a map with the default criterion, which uses none: one line, exit 2
+    assert main(["design", "--material", "9.82,0.705,12.9", "--done", "64x37", "--theta", "fitted"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--criterion perpendicularity" in err

@@ -29,8 +29,8 @@ def register(subparsers) -> None:
                    "(must lie in the material space: eta 1e-4..30, n 0.3..1, sigma_y 0..40)")
     p.add_argument("--done", default=None, action="append", metavar="WxH",
                    help="a setup already run, width x height in mm (20..70), e.g. 29x59; repeat for several")
-    p.add_argument("--theta", default="reference", metavar="reference|fitted|PATH",
-                   help="Theta map: 'reference' (the authors' published map, default), 'fitted' (ours, fitted to MPM "
+    p.add_argument("--theta", default=None, metavar="reference|fitted|PATH",
+                   help="Theta map of --criterion perpendicularity or eig: 'reference' (the authors' published map, default), 'fitted' (ours, fitted to MPM "
                    "loss landscapes) or a JSON file saved by ThetaMap.save or 'virheo theta fit'")
     p.add_argument("--plot", default=None, metavar="FILE.png",
                    help="write a heat map of S_p over the (W, H) grid in mm with the done and chosen setups marked "
@@ -81,7 +81,10 @@ def run(args) -> int:
         plot_path = figure_path(Path(args.plot).expanduser())
         if not plot_path.resolve().parent.is_dir():
             raise ValueError(f"--plot: folder {plot_path.resolve().parent} does not exist")
-    theta = load(args.theta)
+    theta = load(args.theta or "reference")
+    if args.theta is not None and args.criterion == "information":
+        raise ValueError("--theta chooses the Theta map of --criterion perpendicularity or eig; the default criterion, "
+                         "information, simulates instead: add --criterion perpendicularity")
     simulations = 0
     if args.criterion == "information":
         ranking, simulations = simulated_ranking(material, done, args)
@@ -90,8 +93,8 @@ def run(args) -> int:
     best, score = ranking.best()
     gain, gain_note = expected_gain(ranking, best, material, done, theta, covariance)
     # the study validated the packaged maps only: a custom one is "not validated" (information uses no map)
-    validated = (validation(args.criterion, args.theta)
-                 if args.criterion == "information" or args.theta in ("reference", "fitted") else None)
+    validated = (validation(args.criterion, args.theta or "reference")
+                 if args.criterion == "information" or (args.theta or "reference") in ("reference", "fitted") else None)
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
     if args.json:
