@@ -230,3 +230,17 @@ def test_quiet_still_reports_a_damaged_store_in_one_line(tmp_path, python_warnin
     assert proc.stderr.splitlines() == [
         f"virheo study: warning: store index {store / 'index.sqlite'} was damaged (file is not a database); "
         f"moved to {aside[0].name}; rebuilt from 0 intact simulations on disk"]
+
+
+def test_estimate_points_to_the_validated_design_command(capsys, tmp_path, folder, fake):
+    """The next setup `estimate` prints is the paper's criterion's; the line names it and gives the `virheo design`
+    command of the validated one, which runs as printed."""
+    import shlex
+
+    assert main(["estimate", str(folder), "--out", str(tmp_path / "o"), "--preset", "demo", *FAST]) == 0
+    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("next setup: "))
+    assert "the paper's perpendicularity criterion, which proved weak" in line
+    command = shlex.split(line.split("the validated choice: ")[1])
+    assert command[:2] == ["virheo", "design"] and command[-2:] == ["--done", "30x20"]
+    assert main(command[1:] + ["--workers", "0", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["criterion"] == "information"

@@ -79,7 +79,10 @@ def run(args: argparse.Namespace) -> int:
     for w in est.warnings:
         sys.stderr.write(f"virheo estimate: warning: {w}\n")
     if est.next_setup is not None:
-        print(f"next setup: {est.next_setup} mm (width x height)")
+        done = " ".join(f"--done {e.width_mm:g}x{e.height_mm:g}" for e in experiments)
+        print(f"next setup: {est.next_setup} mm (width x height), by the paper's perpendicularity criterion, which "
+              f"proved weak in the simulator's own information; the validated choice: "
+              f"virheo design --material {m.eta:.4g},{m.n:.4g},{m.sigma_y:.4g} {done}")
     print(f"report: {run.out / 'result.json'}")
     print(f"uncertainty (posterior, credible intervals, next setup by information gain, HTML page): virheo report {run.out}")
     return 0
