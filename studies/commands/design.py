@@ -117,8 +117,8 @@ def run(args) -> int:
         label = {"perpendicularity": "S_p", "eig": "expected information gain [nats]",
                  "information": "predicted log det gain"}[args.criterion]
         print(f"next setup: {best} mm (width x height), {label} = {score:.6f}")
-        how = (f"{simulations} simulations with the {args.preset} preset's model" if args.criterion == "information"
-               else f"Theta map: {theta.name}")
+        how = (f"{19 * (len(done) + len(ranking))} simulations ({simulations} run now) with the {args.preset} "
+               "preset's model" if args.criterion == "information" else f"Theta map: {theta.name}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; {how}")
         model = ("linear-Gaussian model with the simulated loss Hessians" if args.criterion == "information"
