@@ -45,6 +45,7 @@ from similarity.fd_hessian import hessian_from_stencil
 
 STEP = 0.05  # the FD step in the normalised material space (docs/landscapes.md, step study)
 GRID_MM = (20.0, 37.0, 53.0, 70.0)  # widths and heights of the setups the ``information`` criterion simulates
+SIMULATIONS_PER_SETUP = 1 + 18  # the emulated footage and the 18-point stencil (similarity.fd_hessian.stencil)
 RIDGE = 1e-2  # eps = RIDGE x lambda_max(H_done)
 
 
@@ -163,6 +164,12 @@ def grid_setups(values_mm=GRID_MM) -> list:
     from mpm.params import Setup
 
     return [Setup(float(w), float(h)) for h in values_mm for w in values_mm]
+
+
+def eig_nats(log_det_gain):
+    """The expected information gain in nats of a log det gain: EIG = 1/2 log det(I + Sigma F) in the
+    linear-Gaussian model whose precision is the summed Hessians."""
+    return 0.5 * log_det_gain
 
 
 def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float = STEP, tick=None) -> np.ndarray:

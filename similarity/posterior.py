@@ -112,6 +112,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     from similarity.design import SIMULATION_PRESET, expected_information_gain, rank_by_simulation, rank_setups
     from similarity.ellipsoid import alignment, ellipsoid
     from similarity.fd_hessian import fd_hessian
+    from similarity.information import eig_nats
     from similarity.estimate import simulated_frames
     from similarity.likelihood import noise_scale
     from similarity.normals import loss_normal
@@ -214,7 +215,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     try:
         info = rank_by_simulation(m_mean, run.setups, preset=SIMULATION_PRESET, forward=run.forward)
         best, gain = info.best()
-        next_info = {"setup": str(best), "log_det_gain": gain, "eig_nats": 0.5 * gain, "preset": SIMULATION_PRESET}
+        next_info = {"setup": str(best), "log_det_gain": gain, "eig_nats": eig_nats(gain), "preset": SIMULATION_PRESET}
     except ValueError as exc:
         next_info = {"error": str(exc).splitlines()[0]}
     summary = PosteriorSummary(

@@ -89,7 +89,7 @@ def _rank(name, estimate, first, covariance, thetas):
     from similarity.design import rank_setups
 
     how = CRITERIA[name]
-    if how is None or how[0] == "information":  # the simulated criterion ranks in run_case
+    if how is None:
         return None, None
     criterion, theta = how
     try:
@@ -105,19 +105,23 @@ def _largest(first: Setup) -> Setup:
 
 
 def _simulated(estimate, first, cands, *, config, preset, forward, tick):
-    """The ``information`` criterion: (pick among its grid, predicted gain by setup name, why it fell back)."""
-    grid = I.grid_setups()
-    names = {str(g) for g in grid}
-    setups = grid + [c for c in cands if str(c) not in names]
+    """The ``information`` criterion: (its pick, as `virheo design` makes it, predicted gain by setup name of its
+    grid and of the other candidates, why it fell back)."""
+    from similarity.design import rank_by_simulation
+
     try:
-        gains = I.predicted_gains(estimate, [first], setups, preset=preset, fd_step=config["fd_step"],
-                                  forward=forward, tick=tick)
+        ranking = rank_by_simulation(estimate, [first], preset=preset, forward=forward, fd_step=config["fd_step"],
+                                     tick=tick)
+        names = {str(g) for g in I.grid_setups()}
+        extra = [c for c in cands if str(c) not in names]
+        gains = (I.predicted_gains(estimate, [first], extra, preset=preset, fd_step=config["fd_step"],
+                                   forward=forward, tick=tick) if extra else [])
     except ValueError as exc:
         return None, {}, str(exc).splitlines()[0]
-    predicted = {str(s): float(g) for s, g in zip(setups, gains) if np.isfinite(g)}
-    if not np.isfinite(gains[:len(grid)]).any():
-        return None, predicted, "every simulation of its grid failed"
-    return grid[int(np.nanargmax(gains[:len(grid)]))], predicted, None
+    predicted = {str(Setup(float(w), float(h))): float(g)
+                 for w, h, g in zip(ranking.width_mm, ranking.height_mm, ranking.score)}
+    predicted.update({str(s): float(g) for s, g in zip(extra, gains) if np.isfinite(g)})
+    return ranking.best()[0], predicted, None
 
 
 def _predicted(ranking, setups, name: str = "") -> list:
@@ -129,7 +133,7 @@ def _predicted(ranking, setups, name: str = "") -> list:
         return [ranking.get(str(s)) for s in setups]
     if ranking is None:
         return [None] * len(setups)
-    sign = 1.0 if ranking.criterion == "eig" else -1.0  # S_p: lower is better
+    sign = 1.0 if ranking.higher_is_better else -1.0  # S_p: lower is better
     score = {(float(w), float(h)): sign * float(v)
              for w, h, v in zip(ranking.width_mm, ranking.height_mm, ranking.score)}
     return [score.get((s.width_mm, s.height_mm)) for s in setups]

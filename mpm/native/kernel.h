@@ -374,10 +374,11 @@ struct Engine {
     int N = 0, NP = 0, T = 1;
     float inv_dx = 0;
     // particles: NP = N rounded up to whole blocks; field f of particle p at word (p / W) * NF * W + f * W + p % W
+    static unsigned long slot(unsigned long p) { return p / W * (NF * W) + p % W; }  // word of field 0
     template <class T>
     struct Field {
         T* p0 = nullptr;
-        T& operator[](long p) const { return p0[(unsigned long)p / W * (NF * W) + (unsigned long)p % W]; }
+        T& operator[](long p) const { return p0[slot((unsigned long)p)]; }
     };
     // in the order a step reads them
     static constexpr int F_X = 0, F_BASE = D, F_BE = 2 * D, F_ISO = F_BE + 6, F_LOGE = F_ISO + 1, F_FLAGS = F_LOGE + 1,
@@ -991,9 +992,8 @@ struct Engine {
         const char* from = static_cast<const char*>(store.ptr);
         char* to = static_cast<char*>(spare.ptr);
         for (int p = 0; p < NP; p++) {
-            unsigned long q = p < N ? order[p] : p;
-            const char* src = from + (q / W * (NF * W) + q % W) * 4;
-            char* dst = to + ((unsigned long)p / W * (NF * W) + (unsigned long)p % W) * 4;
+            const char* src = from + slot(p < N ? order[p] : p) * 4;
+            char* dst = to + slot(p) * 4;
             for (int f = 0; f < NF; f++) std::memcpy(dst + f * W * 4, src + f * W * 4, 4);
         }
         std::swap(store.ptr, spare.ptr);

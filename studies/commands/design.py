@@ -54,7 +54,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from similarity.design import rank_setups
+    from similarity.design import SIMULATION_PRESET, rank_setups
+    from similarity.information import SIMULATIONS_PER_SETUP, grid_setups
     from mpm.params import Material, Setup
     from studies.design_validation import reliability_line, validation
     from surrogate.theta import load
@@ -81,20 +82,21 @@ def run(args) -> int:
         plot_path = figure_path(Path(args.plot).expanduser())
         if not plot_path.resolve().parent.is_dir():
             raise ValueError(f"--plot: folder {plot_path.resolve().parent} does not exist")
-    theta = load(args.theta or "reference")
+    theta_name = args.theta or "reference"
+    theta = load(theta_name)
     if args.theta is not None and args.criterion == "information":
         raise ValueError("--theta chooses the Theta map of --criterion perpendicularity or eig; the default criterion, "
                          "information, simulates instead: add --criterion perpendicularity")
-    simulations = 0
+    simulations, preset = 0, args.preset or SIMULATION_PRESET
     if args.criterion == "information":
-        ranking, simulations = simulated_ranking(material, done, args)
+        ranking, simulations = simulated_ranking(material, done, args, preset)
     else:
         ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
     best, score = ranking.best()
     gain, gain_note = expected_gain(ranking, best, material, done, theta, covariance)
     # the study validated the packaged maps only: a custom one is "not validated" (information uses no map)
-    validated = (validation(args.criterion, args.theta or "reference")
-                 if args.criterion == "information" or (args.theta or "reference") in ("reference", "fitted") else None)
+    validated = (validation(args.criterion, theta_name)
+                 if args.criterion == "information" or theta_name in ("reference", "fitted") else None)
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
     if args.json:
@@ -103,7 +105,7 @@ def run(args) -> int:
             "done": [s.to_dict() for s in done],
             "theta": None if args.criterion == "information" else theta.name,
             "criterion": args.criterion,
-            "preset": args.preset if args.criterion == "information" else None,
+            "preset": preset if args.criterion == "information" else None,
             "simulations": simulations,
             "next": best.to_dict(),
             "score": score,
@@ -117,8 +119,8 @@ def run(args) -> int:
         label = {"perpendicularity": "S_p", "eig": "expected information gain [nats]",
                  "information": "predicted log det gain"}[args.criterion]
         print(f"next setup: {best} mm (width x height), {label} = {score:.6f}")
-        how = (f"{19 * (len(done) + len(ranking))} simulations ({simulations} run now) with the {args.preset} "
-               "preset's model" if args.criterion == "information" else f"Theta map: {theta.name}")
+        how = (f"{SIMULATIONS_PER_SETUP * (len(done) + len(grid_setups()))} simulations ({simulations} run now) with "
+               f"the {preset} preset's model" if args.criterion == "information" else f"Theta map: {theta.name}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; {how}")
         model = ("linear-Gaussian model with the simulated loss Hessians" if args.criterion == "information"
@@ -131,12 +133,13 @@ def run(args) -> int:
     return 0
 
 
-def simulated_ranking(material, done, args):
-    """(the ``information`` ranking, simulations run): the simulator's information at ``material``."""
+def simulated_ranking(material, done, args, preset):
+    """(the ``information`` ranking, simulations run): the simulator's information at ``material`` with the final
+    model of ``preset``."""
     import warnings
 
     from mpm.forward import Forward
-    from similarity.design import SIMULATION_PRESET, rank_by_simulation
+    from similarity.design import rank_by_simulation
     from studies.commands.context import check_engine, report_data_losses, simulator
 
     if args.workers is not None and args.workers < 0:
@@ -153,17 +156,17 @@ def simulated_ranking(material, done, args):
     with warnings.catch_warnings():
         report_data_losses()
         with Forward(store, workers=args.workers, simulator=simulator()) as forward:
-            args.preset = args.preset or SIMULATION_PRESET
-            return rank_by_simulation(material, done, preset=args.preset, forward=forward, tick=tick), count[0]
+            return rank_by_simulation(material, done, preset=preset, forward=forward, tick=tick), count[0]
 
 
 def expected_gain(ranking, best, material, done, theta, covariance) -> tuple[float | None, str | None]:
     """(expected information gain in nats of the chosen setup, why not): the ranking's own score for ``eig``, half
     the log det gain for ``information``, else the EIG ranking's value at the chosen setup."""
     from similarity.design import rank_setups
+    from similarity.information import eig_nats
 
-    if ranking.criterion == "information":  # EIG = 1/2 log det(I + Sigma F) = half the log det gain
-        return 0.5 * float(ranking.best()[1]), None
+    if ranking.criterion == "information":
+        return eig_nats(float(ranking.best()[1])), None
     if ranking.criterion == "eig":
         return float(ranking.best()[1]), None
     try:

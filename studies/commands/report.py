@@ -60,16 +60,14 @@ def run(args: argparse.Namespace) -> int:
     print("posterior 90 % intervals: " + ", ".join(
         f"{k} {getattr(q5, k):.4g}..{getattr(q95, k):.4g}" for k in ("eta", "n", "sigma_y")) + " (Pa s^n, -, Pa)")
     print(f"effective samples {post.ess:.0f}, {'converged' if post.converged else 'NOT converged'}")
+    from studies.design_validation import reliability_line, validation
+
     nxt = summary.next_setups_eig
     if nxt:
-        from studies.design_validation import reliability_line, validation
-
         print(f"next setup by expected information gain: {nxt[0]['setup']} mm ({nxt[0]['eig_nats']:.3f} nats)")
         print("  " + reliability_line(validation("eig", "reference")))
     info = summary.next_setup_information or {}
     if info.get("setup"):
-        from studies.design_validation import reliability_line, validation
-
         print(f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats, "
               f"{info['preset']} preset's model)")
         print("  " + reliability_line(validation("information", "reference")))
