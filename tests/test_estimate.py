@@ -19,7 +19,7 @@ from mpm.params import Material, Setup
 from mpm.store import Store
 from similarity import cma_stage
 from similarity import estimate as E
-from similarity.presets import FOOTAGE_SLIP_LENGTH_M, VALIDATED, setup_of
+from similarity.presets import PAPER_MODEL, setup_of
 from similarity.space import denormalize, e_rel
 
 SIM = "fake_forward:simulate"
@@ -212,13 +212,12 @@ def test_real_solver_end_to_end_small(tmp_path, monkeypatch):
     assert store.count() == n and rerun.material == est.material
 
 
-def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
-    """Coarse-to-fine: stages 1..N on the search model with sticking walls, then a warm-started stage at the
-    solver's default cells with the footage slip length."""
-    from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL
-
+def test_footage_preset_finishes_at_the_papers_discretisation(tmp_path):
+    """Coarse-to-fine on two-particle models: stages 1..N on 2 mm cells, then a warm-started stage at the paper's
+    1.26 mm cells; two particles per cell per axis and sticking walls throughout."""
     footage = E.get_preset("footage")
-    assert footage.search.cell_mm > DEFAULT_CELL_MM and footage.finish_generations > 0
+    assert (PAPER_MODEL.cell_mm, PAPER_MODEL.ppc) == (1.26, 2)
+    assert footage.search.cell_mm > PAPER_MODEL.cell_mm and footage.ppc == 2 and footage.finish_generations > 0
     exps = _footage(Store(tmp_path / "truth"))
     store = Store(tmp_path / "run")
     forward = Forward(store, simulator=SIM)
@@ -229,18 +228,17 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     assert fine.setups == ["30x50", "60x25"] and fine.generations == footage.finish_generations
     assert fine.sigma0 == pytest.approx(coarse[-1].sigma0 * 2 / 3)
     # the stored requests: every simulation of the finishing stage (its warm start included) ran at the
-    # validated discretisation, and only those did
+    # paper's discretisation, and only those did
     stored = store.requests()
-    validated = [r for r in stored if (r.cell_mm, r.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)]
-    assert len(validated) == fine.simulations == 7 * 2 + footage.finish_generations * 7 * 2
-    assert all((r.cell_mm, r.ppc) == (footage.cell_mm, footage.ppc) for r in stored if r not in validated)
-    # ... with slipping walls, and only those slip
-    assert {r.slip_length_m for r in validated} == {FOOTAGE_SLIP_LENGTH_M}
-    assert {r.slip_length_m for r in stored if r not in validated} == {None}
+    finished = [r for r in stored if (r.cell_mm, r.ppc) == (PAPER_MODEL.cell_mm, PAPER_MODEL.ppc)]
+    assert len(finished) == fine.simulations == 7 * 2 + footage.finish_generations * 7 * 2
+    assert all((r.cell_mm, r.ppc) == (footage.cell_mm, footage.ppc) for r in stored if r not in finished)
+    # ... and no stage slips or corrects the density
+    assert {r.slip_length_m for r in stored} == {None}
     assert not any(r.density_correction for r in stored)
     # the answer and its loss are the finishing stage's, recomputed from the store at that discretisation
     assert est.material == fine.material and est.model == footage.final.resolved() == fine.model
-    assert (est.model.cell_mm, est.model.ppc) == (DEFAULT_CELL_MM, PARTICLES_PER_CELL)
+    assert (est.model.cell_mm, est.model.ppc) == (PAPER_MODEL.cell_mm, PAPER_MODEL.ppc)
     eids = [batch.experiment_id(e.frames, e.name) for e in exps]
     assert est.loss == pytest.approx(np.mean([store.get_loss(forward.request(est.material, e, est.model), eid)
                                               for e, eid in zip(exps, eids)]))
@@ -248,12 +246,12 @@ def test_footage_preset_finishes_at_the_validated_discretisation(tmp_path):
     assert fine.screened[0][:3] == pytest.approx(list(E.normalize(coarse[-1].material.as_array())))
     assert est.loss <= min(r[3] for r in fine.screened)
     d = est.to_dict()
-    assert d["model"] == {"cell_mm": DEFAULT_CELL_MM, "ppc": PARTICLES_PER_CELL, "slip_length_m": FOOTAGE_SLIP_LENGTH_M,
+    assert d["model"] == {"cell_mm": PAPER_MODEL.cell_mm, "ppc": PAPER_MODEL.ppc, "slip_length_m": 0.0,
                           "density_correction": False, "flow_rule": "paper", "engine": None}
     assert [s["model"] for s in d["stages"]] == [s.model.to_dict() for s in est.stages]
     assert d["warnings"] == E.bound_warnings(est.material)
     # one slip length for all stages (virheo estimate --slip-mm): the finishing stage takes it too
-    assert replace(footage, slip_length_m=0.0).final == replace(VALIDATED, slip_length_m=0.0)
+    assert replace(footage, slip_length_m=1e-3).final == replace(PAPER_MODEL, slip_length_m=1e-3)
     # the density correction (virheo estimate --density-correction) likewise reaches every stage
     corrected = replace(footage, density_correction=True)
     assert corrected.search.density_correction and corrected.final == replace(footage.final, density_correction=True)

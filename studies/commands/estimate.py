@@ -21,7 +21,7 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=seed, default=0, help="CMA-ES seed (default 0)")
     p.add_argument("--slip-mm", type=float, default=None, metavar="B",
                    help="Navier slip length of the floor and walls in mm, in every stage (default: the preset's; "
-                   "footage: sticking search, 1 mm in the finishing stage; 0: sticking throughout; measured effect "
+                   "footage: sticking throughout; footage-1p: 1 mm in its finishing stage; 0: sticking throughout; measured effect "
                    "in docs/performance.md, Wall slip)")
     p.add_argument("--density-correction", action="store_true",
                    help="the solver's density correction in every stage (one particle per cell then converges in "
