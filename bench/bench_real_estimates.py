@@ -1,7 +1,7 @@
 """ViRheometry on real footage for the four materials with rheometer curves (docs/validation.md).
 
     python bench/bench_real_estimates.py [--root DIR] [--preset footage] [--slip-mm B | --finish-slip-mm B]
-                                         [--density-correction] [--finish-generations G]
+                                         [--density-correction] [--generations G] [--finish-generations G]
                                          [--finish-cell-mm C --finish-ppc P] [--search-cell-mm C --search-ppc P]
                                          [--only lotion milk] [--workers 2] [--score ETA,N,SIGMA_Y ...]
 
@@ -13,8 +13,9 @@ then scored: our estimate and the paper's (Table 1) under the same forward model
 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1 (one-setup) estimate's RMS, the wall time, the CPU
 time of the estimate and its worker processes, and the load average. ``--score`` scores more materials the same
 way as the paper's (e.g. the rheometer's own fit). Prints a markdown table and writes ROOT/real_estimates.json.
-``--finish-cell-mm 1.26 --finish-ppc 2 --finish-slip-mm 0`` finishes at the paper's discretisation (a GPU job:
-``VIRHEO_ARCH=cuda``); ``--search-cell-mm``/``--search-ppc`` change the search stages' cells instead.
+The default preset, ``footage``, finishes at the paper's discretisation (1.26 mm, two particles per axis);
+``--preset footage-1p`` runs the one-particle preset. ``--finish-cell-mm``/``--finish-ppc`` change the finishing
+stage's cells, ``--search-cell-mm``/``--search-ppc`` the search stages'.
 """
 from __future__ import annotations
 
@@ -137,6 +138,7 @@ def main(argv=None) -> int:
                    help="passed to virheo estimate: the solver's density correction in every stage")
     p.add_argument("--finish-slip-mm", type=float, default=None,
                    help="the preset's finishing stage with walls slipping by this many mm (its search as it is)")
+    p.add_argument("--generations", type=int, default=None, help="the preset's generations per search stage")
     p.add_argument("--finish-generations", type=int, default=None,
                    help="the preset's finishing stage with this many CMA-ES generations (its search as it is)")
     p.add_argument("--finish-cell-mm", type=float, default=None, help="the preset's finishing stage on these cells")
@@ -176,6 +178,10 @@ def main(argv=None) -> int:
     preset = replace(preset, finish=replace(preset.finish, **{k: v for k, v in finish.items() if v is not None}))
     search = {"cell_mm": args.search_cell_mm, "ppc": args.search_ppc}
     preset = replace(preset, **{k: v for k, v in search.items() if v is not None})
+    if args.generations is not None:
+        if args.generations < 1:
+            p.error("--generations needs a positive count")
+        preset = replace(preset, generations=args.generations)
     if args.finish_generations is not None:
         if args.finish_generations < 1:
             p.error("--finish-generations needs a positive count")
@@ -204,7 +210,8 @@ def main(argv=None) -> int:
                     and np.isclose(model_of(result).slip_length_m or 0.0, slip, rtol=1e-9, atol=0)
                     and _on_cells(result, final)
                     and _on_cells((result.get("stages") or [{}])[0], preset.search.resolved())
-                    and _finish_generations(result) in (None, preset.finish_generations))
+                    and _finish_generations(result) in (None, preset.finish_generations)
+                    and (result.get("stages") or [{}])[0].get("generations") in (None, preset.generations))
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),
