@@ -206,12 +206,13 @@ def main(argv=None) -> int:
         done = False
         if (out / "result.json").exists():
             result = json.loads((out / "result.json").read_text())
+            first = (result.get("stages") or [{}])[0]
             done = (result.get("preset") == args.preset and result.get("seed", 0) == args.seed
                     and np.isclose(model_of(result).slip_length_m or 0.0, slip, rtol=1e-9, atol=0)
                     and _on_cells(result, final)
-                    and _on_cells((result.get("stages") or [{}])[0], preset.search.resolved())
+                    and _on_cells(first, preset.search.resolved())
                     and _finish_generations(result) in (None, preset.finish_generations)
-                    and (result.get("stages") or [{}])[0].get("generations") in (None, preset.generations))
+                    and first.get("generations") in (None, preset.generations))
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),
