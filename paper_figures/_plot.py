@@ -24,6 +24,7 @@ class Context:
 
     forward: object = None
     landscapes: object = None  # folder of the landscape study (Figs. 6, 7, 9)
+    estimates: object = None  # folders of bench/bench_real_estimates.py, one per seed (Fig. 13)
     simulator: str | None = None  # the studies' simulate function as the command line chose it (None: their default)
 
     def resolved_forward(self, out_dir):

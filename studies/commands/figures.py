@@ -28,6 +28,9 @@ def register(subparsers) -> None:
     p.add_argument("--landscapes", default=None, metavar="DIR",
                    help="output folder of `virheo study landscapes` (Figs. 6, 7; Fig. 9 reads conditioning.json there "
                    "or in DIR/conditioning); with --quick and no DIR a tiny study is run into OUT/landscape-study")
+    p.add_argument("--estimates", nargs="+", default=None, metavar="DIR",
+                   help="Fig. 13: folders written by `python bench/bench_real_estimates.py --root DIR`, one per seed "
+                   "(default: that bench's default root)")
     p.set_defaults(func=run)
 
 
@@ -58,7 +61,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     forward = Forward(args.store or out / "store", workers=args.workers if simulating else 0)
-    context = Context(forward=forward, landscapes=args.landscapes, simulator=simulator())
+    context = Context(forward=forward, landscapes=args.landscapes, estimates=args.estimates,
+                      simulator=simulator())
     made = missing = 0
     t_all = time.perf_counter()
     try:
