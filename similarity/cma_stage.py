@@ -2,7 +2,8 @@
 
 A stage minimises the mean video loss (eq. 3) over its experiments in the normalised material space
 [0, 1]^3 within a budget of ``generations x POPSIZE`` candidate draws, and returns the best candidate it
-evaluated.  Its :class:`StageState` is checkpointed in the store after every generation.
+evaluated.  CMA-ES samples in the stage's search coordinates (:data:`similarity.space.SEARCH_SPACES`); every
+candidate, mean and archive row it records is in the normalised space.  Its :class:`StageState` is checkpointed in the store after every generation.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from mpm.files import JsonRecord, digest
 from mpm.forward import Forward, ForwardModel
 from mpm.params import Material
 from similarity.presets import setup_of
-from similarity.space import denormalize, normalize
+from similarity.space import denormalize, from_search, normalize, to_search
 
 POPSIZE = 7  # 4 + floor(3 ln 3) for 3 parameters
 RESAMPLE = 3  # rounds of redrawing NaN candidates (failed simulations) within one generation
@@ -38,7 +39,7 @@ class Generation(JsonRecord):
     best_loss: float  # best loss of the stage so far
     best_x: list[float] | None  # its candidate (normalised); None while every simulation failed
     mean_x: list[float]  # the current run's mean
-    sigma: float  # the current run's step size
+    sigma: float  # the current run's step size (in the stage's search coordinates)
     drawn: int  # candidate draws of the stage so far (its budget counts these)
     restarts: int  # IPOP restarts so far
     run_best: float  # best loss of the current run
@@ -69,12 +70,15 @@ class Stage:
     screened: list[list[float]] = field(default_factory=list)  # warm start: [x0, x1, x2, loss on these setups]
     finish: bool = False  # the coarse-to-fine finishing stage
     cma_iterations: int = 0  # CMA-ES iterations over all restarts (fewer than ``generations`` once populations grow)
+    search_space: str = "linear"  # the coordinates CMA-ES sampled in (x0 and history stay normalised)
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["material"] = self.material.to_dict()
         d["model"] = self.model.to_dict()
         d.pop("archive")  # hundreds of rows; the history keeps the path
+        if self.search_space == "linear":  # the paper's coordinates: records name only another space
+            d.pop("search_space")
         return d
 
     @classmethod
@@ -114,6 +118,7 @@ class StageState:
     archive: list[list[float]] = field(default_factory=list)
     result: Stage | None = None
     version: int = STATE_VERSION
+    search_space: str = "linear"
 
     def __setstate__(self, state: dict) -> None:
         """Unpickle, also a checkpoint written before the history was typed (dicts): it resumes."""
@@ -150,8 +155,9 @@ class Objective:
         return losses.mean(axis=1)
 
 
-def _stage_id(objective: Objective, x0, sigma0, seed, generations) -> str:
-    return digest({
+def _stage_id(objective: Objective, x0, sigma0, seed, generations, search_space: str) -> str:
+    space = {} if search_space == "linear" else {"search_space": search_space}  # linear: the ids before the option
+    return digest(space | {
         "experiments": objective.exp_ids, "x0": [float(v) for v in x0], "sigma0": float(sigma0), "seed": int(seed),
         "generations": int(generations), "popsize": POPSIZE, "elitist": CMA_ELITIST,
         "restarts": f"ipop/{STALL_DRAWS}/{TOLX}", "state": STATE_VERSION,
@@ -160,6 +166,7 @@ def _stage_id(objective: Objective, x0, sigma0, seed, generations) -> str:
 
 
 def _strategy(x0, sigma0: float, popsize: int, seed: int) -> cma.CMAEvolutionStrategy:
+    """pycma's strategy from mean ``x0`` with step ``sigma0``, both in search coordinates."""
     options = {
         "bounds": [0.0, 1.0], "popsize": popsize, "verbose": -9, "CMA_elitist": CMA_ELITIST, "tolx": TOLX,
         "maxiter": np.inf,  # the stage's budget of draws ends it
@@ -181,15 +188,16 @@ def _stalled(state: StageState) -> bool:
 def _restart(state: StageState, x0, sigma0: float, seed: int) -> None:
     """IPOP restart (Auger & Hansen 2005): the stage's initial distribution again with twice the population."""
     state.restarts += 1
-    state.es = _strategy(x0, sigma0, POPSIZE * 2**state.restarts, seed + 7919 * state.restarts)
+    state.es = _strategy(to_search(x0, state.search_space), sigma0, POPSIZE * 2**state.restarts, seed + 7919 * state.restarts)
     state.restart_drawn, state.run_best = state.drawn, np.inf
 
 
 def _generation(state: StageState, objective: Objective, budget: int) -> None:
     """Draw, evaluate (redrawing failed candidates) and tell one generation."""
-    es = state.es
+    es, space = state.es, state.search_space
     left = budget - state.drawn  # the budget's last draws may not fill a generation: sampled, never told
-    X = [np.asarray(x, float) for x in (es.ask() if left >= es.popsize else es.ask(left))]
+    U = [np.asarray(u, float) for u in (es.ask() if left >= es.popsize else es.ask(left))]  # search coordinates
+    X = [from_search(u, space) for u in U]
     state.drawn += len(X)
     F = objective(X)
     evaluations = len(X)
@@ -198,7 +206,8 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
         if bad.size == 0:
             break
         for i in bad:
-            X[i] = np.asarray(es.ask(1)[0], float)
+            U[i] = np.asarray(es.ask(1)[0], float)
+            X[i] = from_search(U[i], space)
         F[bad] = objective([X[i] for i in bad])
         evaluations += bad.size
     finite = np.isfinite(F)
@@ -210,14 +219,14 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
     if finite.sum() >= 2 and len(X) == es.popsize:  # else nothing to learn: the distribution stays as it is
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # pycma warns when it replaces NaN by the median of the finite values
-            es.tell(X, [float(f) if np.isfinite(f) else np.nan for f in F])
+            es.tell(U, [float(f) if np.isfinite(f) else np.nan for f in F])
     state.generation += 1
     state.evaluations += evaluations
     state.simulations += evaluations * len(objective.experiments)
     state.history.append(Generation(
         generation=state.generation, simulations=state.simulations, best_loss=state.best_loss,
         best_x=None if state.best_x is None else [float(v) for v in state.best_x],
-        mean_x=[float(v) for v in es.mean], sigma=float(es.sigma),
+        mean_x=[float(v) for v in from_search(es.mean, space)], sigma=float(es.sigma),
         drawn=state.drawn, restarts=state.restarts, run_best=state.run_best,
     ))
 
@@ -225,8 +234,9 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
 def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int, generations: int, forward: Forward,
               progress: Callable[[dict], None] | None = None, stage_index: int = 1,
               screened: Sequence[Sequence[float]] = (), screened_simulations: int | None = None,
-              finish: bool = False) -> Stage:
-    """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0``; resumable.
+              finish: bool = False, search_space: str = "linear") -> Stage:
+    """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0`` (in the
+    ``search_space`` coordinates, :data:`similarity.space.SEARCH_SPACES`); resumable.
 
     ``screened``: rows [x0, x1, x2, loss] already evaluated on these experiments (:func:`warm_start`);
     they count as the stage's evaluations (``screened_simulations`` new simulations, by default one each)
@@ -235,14 +245,14 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
     t0 = time.perf_counter()
     objective = Objective(experiments, model, forward, progress)
     store = forward.store
-    run_id = _stage_id(objective, x0, sigma0, seed, generations)
+    run_id = _stage_id(objective, x0, sigma0, seed, generations, search_space)
     state = store.load_checkpoint(run_id)
     if isinstance(state, StageState) and state.result is not None:
         return state.result
     if not isinstance(state, StageState):
         sims = len(screened) if screened_simulations is None else int(screened_simulations)
-        state = StageState(es=_strategy(x0, sigma0, POPSIZE, seed), evaluations=len(screened), simulations=sims,
-                           screened=[list(r) for r in screened])
+        state = StageState(es=_strategy(to_search(x0, search_space), sigma0, POPSIZE, seed), evaluations=len(screened),
+                           simulations=sims, screened=[list(r) for r in screened], search_space=search_space)
         for r in screened:
             if np.isfinite(r[3]):
                 state.offer(np.asarray(r[:3], float), r[3])
@@ -269,7 +279,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
         evaluations=state.evaluations, simulations=state.simulations, generations=state.drawn // POPSIZE,
         model=objective.model, history=state.history,
         wall_seconds=state.wall_seconds + time.perf_counter() - t0, archive=state.archive, screened=state.screened,
-        finish=finish, cma_iterations=state.generation,
+        finish=finish, cma_iterations=state.generation, search_space=search_space,
     )
     store.save_checkpoint(run_id, state)
     return state.result

@@ -42,6 +42,7 @@ class Preset:
     purpose: str = ""
     slip_length_m: float | None = None  # walls' Navier slip length in every stage; None: each stage's own
     density_correction: bool = False  # the solver's density correction in every stage
+    search_space: str = "linear"  # CMA-ES coordinates (similarity.space.SEARCH_SPACES); linear: the paper's
 
     @property
     def search(self) -> ForwardModel:
@@ -62,8 +63,9 @@ PRESETS = {p.name: p for p in (
            purpose="emulated footage (virheo demo, emulation studies): 5 mm cells, under a minute on 2 cores "
                    "with the native engine"),
     Preset("footage", generations=12, cell_mm=2.0, ppc=2, sigma0=0.2, finish_generations=6, finish=PAPER_MODEL,
-           purpose="real footage: 2 mm cells with two particles per axis, then 6 generations at the paper's 1.26 mm "
-                   "cells with two particles per axis; sticking walls"),
+           search_space="log-eta",
+           purpose="real footage: CMA-ES on log(eta), 2 mm cells with two particles per axis, then 6 generations at "
+                   "the paper's 1.26 mm cells with two particles per axis; sticking walls"),
     Preset("footage-1p", generations=12, cell_mm=3.0, ppc=1, sigma0=0.2, finish_generations=6,
            finish=FOOTAGE_1P_MODEL,
            purpose="real footage, one particle per axis: 3 mm cells on sticking walls, then 6 generations at the "

@@ -10,7 +10,8 @@ import numpy as np
 
 from mpm import params
 
-__all__ = ["LOWER", "UPPER", "EXTENT", "normalize", "denormalize", "center", "candidate_setups", "e_rel"]
+__all__ = ["LOWER", "UPPER", "EXTENT", "SEARCH_SPACES", "normalize", "denormalize", "to_search", "from_search", "center",
+           "candidate_setups", "e_rel"]
 
 # Bounds of the paper's material space (SI), in the order (eta, n, sigma_y).
 LOWER = np.array([params.ETA_RANGE[0], params.N_RANGE[0], params.SIGMA_Y_RANGE[0]])
@@ -26,6 +27,36 @@ def normalize(x) -> np.ndarray:
 def denormalize(u) -> np.ndarray:
     """Normalised material space (..., 3) -> SI parameters (eta, n, sigma_y)."""
     return LOWER + np.asarray(u, dtype=float) * EXTENT
+
+
+# Coordinates CMA-ES samples in (Algorithm 1). "linear": the normalised space itself, as in the paper. "log-eta":
+# log(eta) mapped onto [0, 1] over the same range, n and sigma_y unchanged: runny materials (eta ~ 1 Pa s^n) then lie
+# in a valley of ordinary width instead of a sliver at the lower bound of eta (docs/decisions.md#presets).
+SEARCH_SPACES = ("linear", "log-eta")
+_LOG_ETA_SPAN = np.log(UPPER[0] / LOWER[0])
+
+
+def _check_space(space: str) -> None:
+    if space not in SEARCH_SPACES:
+        raise ValueError(f"unknown search space {space!r}: choose one of {', '.join(SEARCH_SPACES)}")
+
+
+def to_search(x, space: str) -> np.ndarray:
+    """Normalised material space (..., 3) -> the search coordinates ``space`` (:data:`SEARCH_SPACES`)."""
+    _check_space(space)
+    u = np.array(x, dtype=float)
+    if space == "log-eta":
+        u[..., 0] = np.log((LOWER[0] + u[..., 0] * EXTENT[0]) / LOWER[0]) / _LOG_ETA_SPAN
+    return u
+
+
+def from_search(u, space: str) -> np.ndarray:
+    """Search coordinates ``space`` (..., 3) -> normalised material space (the inverse of :func:`to_search`)."""
+    _check_space(space)
+    x = np.array(u, dtype=float)
+    if space == "log-eta":
+        x[..., 0] = (LOWER[0] * np.exp(x[..., 0] * _LOG_ETA_SPAN) - LOWER[0]) / EXTENT[0]
+    return x
 
 
 def center() -> params.Material:
