@@ -292,3 +292,39 @@ def test_a_run_is_reread_with_the_model_it_was_estimated_with(tmp_path, shared_d
     req = run.forward.request(run.estimate, run.experiments[0], run.preset.final)
     assert req.slip_length_m == (slip or None)  # sticking requests keep the store key they always had
     assert req.density_correction == corrected
+
+
+def test_search_coordinates_are_log_eta_and_invert():
+    from similarity.space import LOWER, UPPER, from_search, normalize, to_search
+
+    x = np.random.default_rng(0).random((50, 3))
+    for space in ("linear", "log-eta"):
+        assert np.allclose(from_search(to_search(x, space), space), x, atol=1e-12)
+    assert np.array_equal(to_search(x, "linear"), x)
+    u = to_search(normalize([np.sqrt(LOWER[0] * UPPER[0]), 0.7, 3.0]), "log-eta")
+    assert np.allclose(u, [0.5, 4 / 7, 3 / 40])  # the geometric middle of eta's range is the middle; n, sigma_y linear
+    # equal steps in u are equal factors in eta
+    etas = LOWER[0] + from_search([[0.2, 0.5, 0.5], [0.4, 0.5, 0.5], [0.6, 0.5, 0.5]], "log-eta")[:, 0] * (UPPER - LOWER)[0]
+    assert np.isclose(etas[1] / etas[0], etas[2] / etas[1])
+    with pytest.raises(ValueError, match="search space"):
+        to_search(x, "log-n")
+
+
+def test_a_log_eta_stage_records_the_normalised_space(tmp_path):
+    runny = Material(0.6, 0.8, 2.0)
+    exps = _footage(Store(tmp_path / "truth"), setups=((30, 50),), truth=runny)
+    forward = Forward(Store(tmp_path / "s"), simulator=SIM)
+    kw = dict(x0=E.normalize(E.center().as_array()), sigma0=0.2, model=DEMO.search, seed=5, generations=6,
+              forward=forward)
+    stage = E.run_stage(exps, search_space="log-eta", **kw)
+    assert stage.search_space == "log-eta" and stage.to_dict()["search_space"] == "log-eta"
+    rows = np.array(stage.archive)
+    mats = [Material.from_array(denormalize(r[:3])) for r in rows]
+    assert np.allclose(forward.losses(mats, exps, DEMO.search)[:, 0], rows[:, 3])  # rows are (x, loss) pairs
+    best = rows[np.argmin(rows[:, 3])]
+    assert np.allclose(stage.material.as_array(), denormalize(best[:3])) and stage.loss == best[3]
+    # the draws are spread in log(eta): the 42 candidates span more than a decade of eta
+    assert rows[:, 0].max() / max(rows[:, 0].min(), 1e-9) > 10
+    linear = E.run_stage(exps, **kw)  # another stage (its own checkpoint), the paper's coordinates
+    assert linear.search_space == "linear" and "search_space" not in linear.to_dict()
+    assert not np.array_equal(np.array(linear.archive), rows)
