@@ -213,7 +213,8 @@ def main(argv=None) -> int:
                     and _on_cells(first, preset.search.resolved())
                     and _finish_generations(result) in (None, preset.finish_generations)
                     and first.get("generations") in (None, preset.generations)
-                    and first.get("search_space", "linear") == preset.search_space)
+                    and first.get("search_space", "linear") == preset.search_space
+                    and ("shape" in result["stages"][-1]) == preset.carry_covariance)
         if not done:
             load, t0, c0 = os.getloadavg()[0], time.perf_counter(), _cpu_seconds()
             code = virheo(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--seed", str(args.seed),

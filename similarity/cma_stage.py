@@ -71,6 +71,8 @@ class Stage:
     finish: bool = False  # the coarse-to-fine finishing stage
     cma_iterations: int = 0  # CMA-ES iterations over all restarts (fewer than ``generations`` once populations grow)
     search_space: str = "linear"  # the coordinates CMA-ES sampled in (x0 and history stay normalised)
+    shape: list[list[float]] | None = None  # the start's covariance shape (search coordinates, largest axis 1); None: I
+    end_shape: list[list[float]] | None = None  # the last CMA-ES run's covariance shape at the end (the next stage's start)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -79,6 +81,9 @@ class Stage:
         d.pop("archive")  # hundreds of rows; the history keeps the path
         if self.search_space == "linear":  # the paper's coordinates: records name only another space
             d.pop("search_space")
+        for key in ("shape", "end_shape"):
+            if d[key] is None:  # records before covariance shapes read the same
+                d.pop(key)
         return d
 
     @classmethod
@@ -119,6 +124,7 @@ class StageState:
     result: Stage | None = None
     version: int = STATE_VERSION
     search_space: str = "linear"
+    shape: np.ndarray | None = None  # every CMA-ES run's initial covariance shape (None: identity)
 
     def __setstate__(self, state: dict) -> None:
         """Unpickle, also a checkpoint written before the history was typed (dicts): it resumes."""
@@ -155,8 +161,10 @@ class Objective:
         return losses.mean(axis=1)
 
 
-def _stage_id(objective: Objective, x0, sigma0, seed, generations, search_space: str) -> str:
+def _stage_id(objective: Objective, x0, sigma0, seed, generations, search_space: str, shape) -> str:
     space = {} if search_space == "linear" else {"search_space": search_space}  # linear: the ids before the option
+    if shape is not None:
+        space["shape"] = [round(float(v), 9) for v in np.ravel(shape)]
     return digest(space | {
         "experiments": objective.exp_ids, "x0": [float(v) for v in x0], "sigma0": float(sigma0), "seed": int(seed),
         "generations": int(generations), "popsize": POPSIZE, "elitist": CMA_ELITIST,
@@ -165,8 +173,9 @@ def _stage_id(objective: Objective, x0, sigma0, seed, generations, search_space:
     })[:32]
 
 
-def _strategy(x0, sigma0: float, popsize: int, seed: int) -> cma.CMAEvolutionStrategy:
-    """pycma's strategy from mean ``x0`` with step ``sigma0``, both in search coordinates."""
+def _strategy(x0, sigma0: float, popsize: int, seed: int, shape=None) -> cma.CMAEvolutionStrategy:
+    """pycma's strategy from mean ``x0`` with step ``sigma0``, both in search coordinates, and initial covariance
+    sigma0^2 ``shape`` (a symmetric positive definite matrix; None: the identity)."""
     options = {
         "bounds": [0.0, 1.0], "popsize": popsize, "verbose": -9, "CMA_elitist": CMA_ELITIST, "tolx": TOLX,
         "maxiter": np.inf,  # the stage's budget of draws ends it
@@ -175,7 +184,17 @@ def _strategy(x0, sigma0: float, popsize: int, seed: int) -> cma.CMAEvolutionStr
     }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return cma.CMAEvolutionStrategy([float(v) for v in x0], float(sigma0), options)
+        es = cma.CMAEvolutionStrategy([float(v) for v in x0], float(sigma0), options)
+    if shape is not None:
+        es.sm.C = np.array(shape, dtype=float)  # pycma keeps C in its sampler; decomposed before the first draw
+        es.sm._decompose_C()
+    return es
+
+
+def covariance_shape(es: cma.CMAEvolutionStrategy) -> list[list[float]]:
+    """The covariance of ``es``'s sampling distribution scaled to a largest axis of 1 (search coordinates)."""
+    C = np.asarray(es.sm.C, dtype=float)
+    return (C / np.linalg.eigvalsh(C).max()).tolist()
 
 
 def _stalled(state: StageState) -> bool:
@@ -188,7 +207,8 @@ def _stalled(state: StageState) -> bool:
 def _restart(state: StageState, x0, sigma0: float, seed: int) -> None:
     """IPOP restart (Auger & Hansen 2005): the stage's initial distribution again with twice the population."""
     state.restarts += 1
-    state.es = _strategy(to_search(x0, state.search_space), sigma0, POPSIZE * 2**state.restarts, seed + 7919 * state.restarts)
+    state.es = _strategy(to_search(x0, state.search_space), sigma0, POPSIZE * 2**state.restarts,
+                         seed + 7919 * state.restarts, state.shape)
     state.restart_drawn, state.run_best = state.drawn, np.inf
 
 
@@ -234,9 +254,10 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
 def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int, generations: int, forward: Forward,
               progress: Callable[[dict], None] | None = None, stage_index: int = 1,
               screened: Sequence[Sequence[float]] = (), screened_simulations: int | None = None,
-              finish: bool = False, search_space: str = "linear") -> Stage:
+              finish: bool = False, search_space: str = "linear", shape=None) -> Stage:
     """One CMA-ES run on ``experiments`` from mean ``x0`` (normalised) with step ``sigma0`` (in the
-    ``search_space`` coordinates, :data:`similarity.space.SEARCH_SPACES`); resumable.
+    ``search_space`` coordinates, :data:`similarity.space.SEARCH_SPACES`) and initial covariance shape ``shape``
+    (e.g. the previous stage's ``end_shape``; None: isotropic); resumable.
 
     ``screened``: rows [x0, x1, x2, loss] already evaluated on these experiments (:func:`warm_start`);
     they count as the stage's evaluations (``screened_simulations`` new simulations, by default one each)
@@ -245,14 +266,15 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
     t0 = time.perf_counter()
     objective = Objective(experiments, model, forward, progress)
     store = forward.store
-    run_id = _stage_id(objective, x0, sigma0, seed, generations, search_space)
+    run_id = _stage_id(objective, x0, sigma0, seed, generations, search_space, shape)
     state = store.load_checkpoint(run_id)
     if isinstance(state, StageState) and state.result is not None:
         return state.result
     if not isinstance(state, StageState):
         sims = len(screened) if screened_simulations is None else int(screened_simulations)
-        state = StageState(es=_strategy(to_search(x0, search_space), sigma0, POPSIZE, seed), evaluations=len(screened),
-                           simulations=sims, screened=[list(r) for r in screened], search_space=search_space)
+        state = StageState(es=_strategy(to_search(x0, search_space), sigma0, POPSIZE, seed, shape),
+                           evaluations=len(screened), simulations=sims, screened=[list(r) for r in screened],
+                           search_space=search_space, shape=None if shape is None else np.array(shape, dtype=float))
         for r in screened:
             if np.isfinite(r[3]):
                 state.offer(np.asarray(r[:3], float), r[3])
@@ -280,6 +302,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
         model=objective.model, history=state.history,
         wall_seconds=state.wall_seconds + time.perf_counter() - t0, archive=state.archive, screened=state.screened,
         finish=finish, cma_iterations=state.generation, search_space=search_space,
+        shape=None if shape is None else np.asarray(shape, dtype=float).tolist(), end_shape=covariance_shape(state.es),
     )
     store.save_checkpoint(run_id, state)
     return state.result
