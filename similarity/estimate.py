@@ -135,9 +135,6 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
         stage.next_setup = None if nxt is None else str(Setup(nxt.width_mm, nxt.height_mm))
         stages.append(stage)
 
-    def carried():  # the covariance shape a warm-started stage starts with
-        return stages[-1].end_shape if stages and preset.carry_covariance else None
-
     try:
         k = 0
         while k < n_setups:
@@ -152,7 +149,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
                 x0, screened = warm_start(stages[-1], experiments[:k], model=preset.search, **common)
             stage = run_stage(experiments[:k], x0=x0, sigma0=preset.sigma0 * (2.0 / 3.0) ** (k - 1),
                               model=preset.search, seed=seed + k - 1, generations=generations, stage_index=k,
-                              screened=screened, search_space=preset.search_space, shape=carried(), **common)
+                              screened=screened, search_space=preset.search_space, **common)
             finish_stage(stage, [setup_of(e) for e in experiments[:k]])
             x0 = normalize(stage.material.as_array())
         if preset.finish_generations > 0:  # coarse-to-fine: the last stage at the final discretisation
@@ -161,7 +158,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
             stage = run_stage(experiments[:n], x0=x0, sigma0=preset.sigma0 * (2.0 / 3.0) ** n, model=preset.final,
                               seed=seed + n, generations=preset.finish_generations, stage_index=n + 1,
                               screened=screened, screened_simulations=n * len(screened), finish=True,
-                              search_space=preset.search_space, shape=carried(), **common)
+                              search_space=preset.search_space,
+                              shape=stages[-1].end_shape if preset.carry_covariance else None, **common)
             finish_stage(stage, [setup_of(e) for e in experiments[:n]])
     finally:
         if own:

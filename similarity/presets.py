@@ -43,7 +43,7 @@ class Preset:
     slip_length_m: float | None = None  # walls' Navier slip length in every stage; None: each stage's own
     density_correction: bool = False  # the solver's density correction in every stage
     search_space: str = "linear"  # CMA-ES coordinates (similarity.space.SEARCH_SPACES); linear: the paper's
-    carry_covariance: bool = False  # a warm-started stage starts with the previous stage's covariance shape
+    carry_covariance: bool = False  # the finishing stage starts with the last search stage's covariance shape
 
     @property
     def search(self) -> ForwardModel:
@@ -66,8 +66,8 @@ PRESETS = {p.name: p for p in (
     Preset("footage", generations=12, cell_mm=2.0, ppc=2, sigma0=0.2, finish_generations=6, finish=PAPER_MODEL,
            search_space="log-eta", carry_covariance=True,
            purpose="real footage: CMA-ES on log(eta), 2 mm cells with two particles per axis, then 6 generations at "
-                   "the paper's 1.26 mm cells with two particles per axis, each warm-started stage with the previous "
-                   "one's covariance shape; sticking walls"),
+                   "the paper's 1.26 mm cells with two particles per axis, started with the last search stage's "
+                   "covariance shape; sticking walls"),
     Preset("footage-1p", generations=12, cell_mm=3.0, ppc=1, sigma0=0.2, finish_generations=6,
            finish=FOOTAGE_1P_MODEL,
            purpose="real footage, one particle per axis: 3 mm cells on sticking walls, then 6 generations at the "

@@ -330,21 +330,22 @@ def test_a_log_eta_stage_records_the_normalised_space(tmp_path):
     assert not np.array_equal(np.array(linear.archive), rows)
 
 
-def test_a_warm_started_stage_carries_the_previous_covariance_shape(tmp_path):
+def test_the_finishing_stage_carries_the_search_stages_covariance_shape(tmp_path):
     exps = _footage(Store(tmp_path / "truth"))
-    carry = replace(DEMO, generations=12, carry_covariance=True)
+    carry = replace(DEMO, generations=12, finish_generations=2, finish=DEMO.search, carry_covariance=True)
     forward = Forward(Store(tmp_path / "s"), simulator=SIM)
     est = E.estimate(exps, preset=carry, seed=3, forward=forward, propose=None)
-    one, two = est.stages
-    assert one.shape is None and two.shape == one.end_shape and "shape" in two.to_dict()
-    axes = np.sqrt(np.linalg.eigvalsh(np.array(one.end_shape)))
-    assert np.isclose(axes.max(), 1.0) and axes.min() < 0.5  # stage 1 learned an elongated, unit-scaled shape
-    # stage 2's first generation spreads along that shape: its draws' covariance shares the long axis
-    X = np.array([r[:3] for r in two.archive[:7]])
-    long_axis = np.linalg.eigh(np.array(one.end_shape))[1][:, -1]
+    one, two, fin = est.stages
+    assert one.shape is None and two.shape is None  # a new setup changes the valley: those start as spheres
+    assert fin.finish and fin.shape == two.end_shape and "shape" in fin.to_dict()
+    axes = np.sqrt(np.linalg.eigvalsh(np.array(two.end_shape)))
+    assert np.isclose(axes.max(), 1.0) and axes.min() < 0.5  # stage 2 learned an elongated, unit-scaled shape
+    # the finish's first generation spreads along that shape: its draws' covariance shares the long axis
+    X = np.array([r[:3] for r in fin.archive[:7]])
+    long_axis = np.linalg.eigh(np.array(two.end_shape))[1][:, -1]
     spread = np.linalg.eigh(np.cov(X.T))[1][:, -1]
     assert abs(spread @ long_axis) > 0.7
     again = E.estimate(exps, preset=carry, seed=3, forward=forward, propose=None)  # from the store's checkpoints
     assert again.material == est.material and again.simulations == est.simulations
     plain = E.estimate(exps, preset=replace(carry, carry_covariance=False), seed=3, forward=forward, propose=None)
-    assert plain.stages[1].shape is None and "shape" not in plain.stages[1].to_dict()
+    assert plain.stages[-1].shape is None and "shape" not in plain.stages[-1].to_dict()
