@@ -1,9 +1,9 @@
 """Estimation presets: CMA-ES budget and forward models (:class:`mpm.forward.ForwardModel`).
 
 A preset names what it is for: ``demo`` (emulated footage, about a minute on a laptop), ``footage`` (real
-footage: Algorithm 1 on a cheap two-particle model, finished at the paper's discretisation on sticking walls),
-``footage-1p`` (the previous real-footage default: one particle per cell per axis, finished with slipping walls)
-and ``paper`` (the paper's budget and discretisation).  Costs and accuracy: docs/performance.md; why these defaults: docs/decisions.md#presets.
+footage: Algorithm 1 in log(eta) on a cheap two-particle model, finished at the paper's discretisation on sticking
+walls), ``footage-1p`` (the previous real-footage default: one particle per cell per axis, finished with slipping
+walls) and ``paper`` (the paper's budget and discretisation).  Costs and accuracy: docs/performance.md; why these defaults: docs/decisions.md#presets.
 """
 from __future__ import annotations
 
