@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     from dataclasses import replace
 
     from mpm import experiment as xp
-    from mpm.datasets import manifest, real_world_dir
+    from mpm.datasets import manifest, real_world_dir, table1
     from mpm.loss import iou, video_loss
     from mpm.forward import Forward
     from mpm.params import Material
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     if row is None:
         raise SystemExit(f"bench_cuda: no shared experiment {a.experiment!r}")
     exp = xp.load(str(Path(real_world_dir()) / a.experiment))
-    mat = Material(float(row["paper_eta_Pa_s_n"]), float(row["paper_n"]), float(row["paper_sigma_y_Pa"]))
+    mat = table1(row)
     cores = os.cpu_count() or 1
     warm = replace(VALIDATED, cell_mm=6.0, slip_length_m=a.slip_m)
     print(f"# measured: {how_measured()}", flush=True)

@@ -87,12 +87,6 @@ class Agreement:
         return bool(self.ious.min() >= MIN_IOU) and self.runout_ok
 
 
-def table1(row: dict):
-    from mpm.params import Material
-
-    return Material(float(row["paper_eta_Pa_s_n"]), float(row["paper_n"]), float(row["paper_sigma_y_Pa"]))
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--experiments", nargs="+", default=None,
@@ -110,7 +104,7 @@ def main(argv=None) -> int:
 
 def run(a) -> int:
     from mpm import runtime
-    from mpm.datasets import manifest, real_world_dir
+    from mpm.datasets import manifest, real_world_dir, table1
     from mpm.experiment import load as load_experiment
     from mpm.params import WORKING_SIZE
 

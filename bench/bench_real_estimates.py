@@ -123,8 +123,7 @@ def score(out: Path, paper, curve, workers: int, others=()) -> dict:
 
 def main(argv=None) -> int:
     from mpm import experiment as xp
-    from mpm.datasets import manifest, real_world_dir
-    from mpm.params import Material
+    from mpm.datasets import manifest, real_world_dir, table1
     from studies.cli import main as virheo
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -226,8 +225,7 @@ def main(argv=None) -> int:
             results.setdefault(slug, {})["measured"] = {
                 "wall_s": time.perf_counter() - t0, "cpu_s": _cpu_seconds() - c0,
                 "load_start": load, "load_end": os.getloadavg()[0]}
-        r0 = mine[0]
-        paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
+        paper = table1(mine[0])
         _ = [xp.load(f) for f in folders]  # fail early on unreadable footage
         results.setdefault(slug, {}).update(material=name, **score(out, paper, curves[name], args.workers, others))
         root.mkdir(parents=True, exist_ok=True)

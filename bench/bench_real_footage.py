@@ -19,7 +19,7 @@ import numpy as np
 
 from mpm import batch
 from mpm import experiment as xp
-from mpm.datasets import manifest, real_world_dir
+from mpm.datasets import manifest, real_world_dir, table1
 from mpm.params import Material
 from mpm.store import Store
 from similarity.space import center
@@ -62,8 +62,7 @@ def main(argv=None) -> int:
         for r in by_material[name]:
             e = xp.load(Path(real_world_dir()) / r["folder"])
             exps[r["folder"]] = e
-            table1 = Material(float(r["paper_eta_Pa_s_n"]), float(r["paper_n"]), float(r["paper_sigma_y_Pa"]))
-            for label, m in perturbations(table1).items():
+            for label, m in perturbations(table1(r)).items():
                 if args.columns is not None and label not in args.columns:
                     continue
                 req = batch.request_for(m, e, density=e.density, depth_mm=e.depth_mm, camera=e.camera,

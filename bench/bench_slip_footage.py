@@ -29,9 +29,8 @@ from measured import how_measured  # noqa: E402
 
 def main(argv=None) -> int:
     from mpm import experiment as xp
-    from mpm.datasets import manifest, real_world_dir
+    from mpm.datasets import manifest, real_world_dir, table1
     from mpm.forward import Forward
-    from mpm.params import Material
     from similarity.presets import VALIDATED
     from surrogate.rheometer import fit_herschel_bulkley
 
@@ -63,8 +62,7 @@ def main(argv=None) -> int:
                 continue
             mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
             exps = [xp.load(str(Path(real_world_dir()) / r["folder"])) for r in mine]
-            r0 = mine[0]
-            paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
+            paper = table1(mine[0])
             refs = [fit_herschel_bulkley(curves[name]).material, paper, *others]
             for b in slips:
                 model = dataclasses.replace(VALIDATED, slip_length_m=b, cell_mm=args.cell_mm, ppc=args.ppc,

@@ -43,6 +43,13 @@ def manifest() -> list[dict]:
     return _rows(real_world_dir() / "manifest.csv")
 
 
+def table1(row: dict):
+    """The paper's Table-1 estimate of a manifest row (:func:`manifest`), as a :class:`mpm.params.Material` (SI)."""
+    from mpm.params import Material
+
+    return Material(float(row["paper_eta_Pa_s_n"]), float(row["paper_n"]), float(row["paper_sigma_y_Pa"]))
+
+
 def first_estimates() -> list[dict]:
     """Rows of real_world/first_estimates.csv (estimate after setup 1 in SI, chosen second setup in cm)."""
     return _rows(real_world_dir() / "first_estimates.csv")

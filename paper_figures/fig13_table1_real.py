@@ -44,8 +44,7 @@ def _curves() -> dict:
 def _pairs():
     """[(material, [experiments setup 1, setup 2], paper Material)] for every shared material, manifest order."""
     from mpm import experiment as xp
-    from mpm.datasets import data_dir, manifest, real_world_dir
-    from mpm.params import Material
+    from mpm.datasets import data_dir, manifest, real_world_dir, table1
 
     if data_dir() is None:
         raise MissingData("shared footage not found: set VIRHEO_DATA to the shared data folder")
@@ -55,9 +54,7 @@ def _pairs():
     out = []
     for name, rows in groups.items():
         rows.sort(key=lambda r: int(r["setup_index"]))
-        r0 = rows[0]
-        paper = Material(float(r0["paper_eta_Pa_s_n"]), float(r0["paper_n"]), float(r0["paper_sigma_y_Pa"]))
-        out.append((name, [xp.load(real_world_dir() / r["folder"]) for r in rows], paper))
+        out.append((name, [xp.load(real_world_dir() / r["folder"]) for r in rows], table1(rows[0])))
     return out
 
 
@@ -102,23 +99,22 @@ def quick_estimates(forward) -> list[dict]:
 def folder_estimates(roots) -> list[dict]:
     """Table 1 rows from bench estimate folders (``ROOT/<material>/result.json``, ``ROOT/real_estimates.json``),
     one row per material and folder, in the manifest's order, then the folders' order."""
-    import json
-
-    from mpm.datasets import data_dir, manifest
+    from mpm.datasets import data_dir, manifest, table1
+    from mpm.files import read_json
+    from similarity.run_folder import read_result
 
     if data_dir() is None:
         raise MissingData("shared footage not found: set VIRHEO_DATA to the shared data folder")
-    materials = {r["folder"]: (r["material"], {"eta": float(r["paper_eta_Pa_s_n"]), "n": float(r["paper_n"]),
-                                               "sigma_y": float(r["paper_sigma_y_Pa"])}) for r in manifest()}
+    materials = {r["folder"]: (r["material"], table1(r)) for r in manifest()}
     order = list(dict.fromkeys(name for name, _ in materials.values()))
     curves = _curves()
     rows = []
     for root in map(Path, roots):
         summary_path = root / "real_estimates.json"
-        summary = json.loads(summary_path.read_text()) if summary_path.is_file() else {}
+        summary = read_json(summary_path) if summary_path.is_file() else {}
         paper_loss = {v.get("material"): v.get("loss_paper") for v in summary.values() if isinstance(v, dict)}
         for path in sorted(root.glob("*/result.json")):
-            result = json.loads(path.read_text())
+            result, two = read_result(path.parent)  # one-line ValueError for a malformed result.json
             names = [e.get("name") for e in result.get("experiments", [])]
             found = materials.get(names[0]) if names else None  # (material, Table 1) of shared footage
             if found is None or not result.get("stages"):
@@ -126,9 +122,9 @@ def folder_estimates(roots) -> list[dict]:
             name, paper = found
             model = result.get("model", {})
             rows.append(_add_rms({
-                "material": name, "setups_mm": list(result["setups"]), "folder": str(path.parent),
-                "one_setup": dict(result["stages"][0]["material"]), "two_setups": dict(result["estimate"]),
-                "paper": paper, "loss_two_setups": float(result["loss"]), "loss_paper": paper_loss.get(name),
+                "material": name, "setups_mm": list(result.get("setups", [])), "folder": str(path.parent),
+                "one_setup": dict(result["stages"][0]["material"]), "two_setups": two.to_dict(),
+                "paper": paper.to_dict(), "loss_two_setups": result.get("loss"), "loss_paper": paper_loss.get(name),
                 "simulations": result.get("simulations"), "preset": result.get("preset"), "seed": result.get("seed"),
                 "wall_seconds": result.get("wall_seconds"),
                 "about": f"{result.get('preset')} preset, losses at {model.get('cell_mm')} mm cells with "

@@ -3,7 +3,8 @@
 A stage minimises the mean video loss (eq. 3) over its experiments in the normalised material space
 [0, 1]^3 within a budget of ``generations x POPSIZE`` candidate draws, and returns the best candidate it
 evaluated.  CMA-ES samples in the stage's search coordinates (:data:`similarity.space.SEARCH_SPACES`); every
-candidate, mean and archive row it records is in the normalised space.  Its :class:`StageState` is checkpointed in the store after every generation.
+candidate, mean and archive row it records is in the normalised space.  Its :class:`StageState` is checkpointed
+in the store after every generation.
 """
 from __future__ import annotations
 
