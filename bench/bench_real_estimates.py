@@ -12,7 +12,9 @@ then scored: our estimate and the paper's (Table 1) under the same forward model
 (mean eq.-3 loss over the two setups), and both flow curves against the rheometer (RMS of log10 stress over
 1-100 1/s; 0.1 is a factor 1.26). Also printed: the stage-1 (one-setup) estimate's RMS, the wall time, the CPU
 time of the estimate and its worker processes, and the load average. ``--score`` scores more materials the same
-way as the paper's (e.g. the rheometer's own fit). Prints a markdown table and writes ROOT/real_estimates.json.
+way as the paper's (e.g. the rheometer's own fit). The run's valley: how many of the materials simulated under the
+final model (the finishing stage's) lie within 1 % of the best loss, and the range of their n and RMS. Prints a
+markdown table and writes ROOT/real_estimates.json.
 The default preset, ``footage``, finishes at the paper's discretisation (1.26 mm, two particles per axis);
 ``--preset footage-1p`` runs the one-particle preset. ``--finish-cell-mm``/``--finish-ppc`` change the finishing
 stage's cells, ``--search-cell-mm``/``--search-ppc`` the search stages'.
@@ -33,6 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 import numpy as np  # noqa: E402
 from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
+VALLEY = 0.01  # the materials within this fraction of the best loss under the final model are printed as its valley
 SLUGS = {"Japanese thickened Worcestershire sauce": "worcestershire", "moisturizing milk": "milk",
          "Japanese cabbage pancake sauce": "okonomiyaki", "lotion": "lotion"}
 
@@ -93,7 +96,9 @@ def score(out: Path, paper, curve, workers: int, others=()) -> dict:
     """Loss of our estimate and the paper's (and of the materials ``others``) under the run's final forward model,
     and their flow-curve RMS."""
     from mpm.forward import Forward
-    from similarity.posterior import load_run
+    from mpm.params import Material
+    from similarity.posterior import archive, load_run, mean_losses
+    from similarity.space import denormalize
     from surrogate.rheometer import log_stress_rms
 
     with Forward(out / "store", workers=workers) as forward:
@@ -106,6 +111,11 @@ def score(out: Path, paper, curve, workers: int, others=()) -> dict:
 
         losses = {"loss_ours": loss(run.estimate), "loss_paper": loss(paper)}
         others_losses = [loss(m) for m in others]
+        X = archive(run, np.full(3, 0.5), 0.5)  # every material the store holds in all setups under the final model
+        X_losses = mean_losses(run, X)
+    near = X_losses <= (1.0 + VALLEY) * np.nanmin(X_losses)
+    valley = [{"material": m.to_dict(), "loss": float(v), "rms": log_stress_rms(m, curve)}
+              for m, v in zip((Material.from_array(denormalize(x)) for x in X[near]), X_losses[near])]
     stage1 = _material(result["stages"][0]["material"]) if result.get("stages") else None
     return {
         "setups": [f"{e.width_mm:g}x{e.height_mm:g}" for e in run.experiments],
@@ -118,6 +128,7 @@ def score(out: Path, paper, curve, workers: int, others=()) -> dict:
         "wall_seconds": result.get("wall_seconds"),
         "others": [{"material": m.to_dict(), "loss": v, "rms": log_stress_rms(m, curve)}
                    for m, v in zip(others, others_losses)],
+        "archive_size": int(len(X)), "valley": valley,
     }
 
 
@@ -245,6 +256,12 @@ def main(argv=None) -> int:
     for slug, r in results.items():
         for o in r.get("others", ()):
             print(f"{r['material']}: {f(o['material'])} scores loss {o['loss']:.5f}, RMS {o['rms']:.3f}")
+    for slug, r in results.items():
+        if r.get("valley"):
+            n = [v["material"]["n"] for v in r["valley"]]
+            rms = [v["rms"] for v in r["valley"]]
+            print(f"{r['material']}: {len(n)} of the {r['archive_size']} materials simulated under the final model lie "
+                  f"within {100 * VALLEY:g} % of the best loss: n {min(n):.2f}-{max(n):.2f}, RMS {min(rms):.3f}-{max(rms):.3f}")
     return 0
 
 
