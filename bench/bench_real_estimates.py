@@ -260,8 +260,8 @@ def main(argv=None) -> int:
         if r.get("valley"):
             n = [v["material"]["n"] for v in r["valley"]]
             rms = [v["rms"] for v in r["valley"]]
-            print(f"{r['material']}: {len(n)} of the {r['archive_size']} materials simulated under the final model lie "
-                  f"within {100 * VALLEY:g} % of the best loss: n {min(n):.2f}-{max(n):.2f}, RMS {min(rms):.3f}-{max(rms):.3f}")
+            print(f"{r['material']}: within {100 * VALLEY:g} % of the best loss under the final model, {len(n)} of its "
+                  f"{r['archive_size']} simulated materials: n {min(n):.2f}-{max(n):.2f}, RMS {min(rms):.3f}-{max(rms):.3f}")
     return 0
 
 
