@@ -10,6 +10,10 @@
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
   simulations already in the store near the estimate (the CMA-ES archive) plus a scrambled-Sobol
   batch of new ones; its held-out RMSE enters the noise variance.
+* Check: a batch of posterior draws is simulated.  Where the emulator promised them a better fit than the
+  simulator gives (by more than ``CHECK_NATS`` on average, :func:`posterior_check`) they join the training set
+  and the posterior is sampled again, up to ``CHECK_ROUNDS`` times: a minimum that the emulator invented
+  between sparse training points draws the posterior there, and the draws' simulations take it away.
 * Sampler: :func:`similarity.mcmc.sample` (emcee, resumable HDF5 backend ``posterior.h5`` in the run
   folder), walkers started in a small ball around the CMA-ES optimum.
 """
@@ -23,7 +27,8 @@ import numpy as np
 from mpm.files import write_json
 from mpm.params import Material
 from similarity.mcmc import QUANTILES, Posterior, check_backend, sample
-from similarity.posterior_summary import EmulatorSummary, PosteriorStats, PosteriorSummary, read_posterior  # noqa: F401
+from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, PosteriorStats, PosteriorSummary,  # noqa: F401
+                                          read_posterior)
 from similarity.run_folder import Run, load_run, read_result  # noqa: F401 (re-exported)
 from similarity.space import denormalize, normalize
 
@@ -31,6 +36,8 @@ NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chose
 MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
 MAX_CUT = 0.02  # largest posterior fraction allowed in the outer EDGE of the box at an inner face
 EDGE = 0.05
+CHECK_ROUNDS = 4  # posterior checks per box: simulated draws join the training set while the emulator is optimistic
+CHECK_NATS = 1.0  # the most the emulator may promise above the simulator on the posterior's draws (mean, eq. 1)
 FLOW_RATES = np.logspace(-2, 4, 121)  # 1/s, the range of the flow-curve plots
 
 
@@ -88,6 +95,82 @@ def box_log_posterior(noise, emu, lo, hi):
     return log_prob
 
 
+def posterior_check(noise, emu, X, y, rounds: int) -> PosteriorCheck:
+    """Emulated against simulated eq. (1) at posterior draws ``X`` (normalised) with simulated losses ``y``:
+    ``optimism_nats`` is the mean of tau (L_simulated - L_emulated), positive where the emulator promises a
+    better fit than the simulator gives.  A draw whose simulation failed fails the check."""
+    y = np.asarray(y, float)
+    ok = np.isfinite(y)
+    d = noise.precision * (y[ok] - emu.predict(X[ok])) if ok.any() else np.zeros(0)
+    optimism = float(np.mean(d)) if d.size else float("inf")
+    rms = float(np.sqrt(np.mean(d**2))) if d.size else float("inf")
+    failed = int(np.count_nonzero(~ok))
+    return PosteriorCheck(draws=len(y), rounds=rounds, optimism_nats=optimism, rms_nats=rms, failed=failed,
+                          passed=bool(failed == 0 and optimism <= CHECK_NATS))
+
+
+@dataclass
+class CheckedFit:
+    """One emulator fit, its noise model, the posterior sampled on it and that posterior's check."""
+
+    emulator: object
+    validation: object
+    noise: object
+    posterior: Posterior
+    check: PosteriorCheck | None
+
+
+def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, split, seed: int = 0, stage: int = 0,
+                      nwalkers: int = 32, min_ess: float = 1000.0, max_steps: int = 20000, backend=None,
+                      progress=None, too_few: str = "too few simulated candidates to fit the emulator",
+                      rounds: int = CHECK_ROUNDS):
+    """Fit the loss emulator on (X, y), sample the posterior in the box [lo, hi] and check it against the
+    simulator: ``draws`` posterior draws are simulated (``losses``: normalised (k, 3) -> mean losses (k,));
+    where the emulator was optimistic there (:func:`posterior_check`) they join the training set and the
+    posterior is sampled again, at most ``rounds`` times.  ``split``: the generator of the held-out fifth;
+    the draws are chosen by ``seed``, ``stage`` (the box) and the round.
+    Returns the last :class:`CheckedFit` (its check describes its posterior; None with ``draws`` 0) and the
+    training set grown by the checks' simulations."""
+    from mpm.files import digest
+    from surrogate.emulator import LossEmulator, min_training
+
+    X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
+    check = None
+    for round_ in range(rounds + 1):
+        ok = np.isfinite(y)
+        Xf, yf = X[ok], y[ok]
+        held_out = max(1, len(yf) // 5)
+        if len(yf) - held_out < min_training(3):
+            raise ValueError(too_few)
+        test = np.zeros(len(yf), bool)
+        test[split.choice(len(yf), size=held_out, replace=False)] = True
+        emu = LossEmulator(seed=seed)
+        validation = emu.validate(Xf[~test], yf[~test], Xf[test], yf[test])
+        noise = base_noise.with_emulator(validation.rmse)
+        if progress:
+            progress({"event": "message", "text": f"emulator held-out RMSE {validation.rmse:.2e} (loss range "
+                      f"{validation.loss_range:.2e}); noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}"})
+        key = digest({"X": Xf.round(12).tolist(), "y": yf.tolist(), "noise": noise.to_dict(), "seed": seed,
+                      "nwalkers": nwalkers})[:16]
+        post = sample(box_log_posterior(noise, emu, lo, hi), x_hat, nwalkers=nwalkers, seed=seed,
+                      min_ess=min_ess, max_steps=max_steps, backend=backend, backend_name=f"mcmc-{key}",
+                      progress=progress)
+        if draws <= 0:
+            return CheckedFit(emu, validation, noise, post, None), X, y
+        draw = np.random.default_rng([seed, stage, round_])
+        pick = draw.choice(len(post.samples), size=min(draws, len(post.samples)), replace=False)
+        X_chk = post.samples[pick]
+        y_chk = np.asarray(losses(X_chk), float)
+        check = posterior_check(noise, emu, X_chk, y_chk, rounds=round_ + 1)
+        if progress:
+            progress({"event": "message", "text": f"posterior check: {len(y_chk)} draws simulated, the emulator is "
+                      f"{check.optimism_nats:+.2f} nats optimistic on them (RMS {check.rms_nats:.2f}), "
+                      f"{check.failed} failed: {'trusted' if check.passed else 'retraining'}"})
+        X, y = np.vstack([X, X_chk]), np.concatenate([y, y_chk])
+        if check.passed or round_ == rounds:
+            return CheckedFit(emu, validation, noise, post, check), X, y
+
+
 @dataclass
 class Analysis:
     """Everything :func:`analyse` computes for a run (``summary`` is what posterior.json holds)."""
@@ -106,9 +189,9 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
             discretisation: bool = True, noise_count: str = NOISE_COUNT,
             progress: Callable[[dict], None] | None = None) -> Analysis:
     """Noise scale, emulator, posterior, ellipsoids and ranked next setups of a run; writes
-    ``posterior.json``, ``posterior_samples.npy`` and the resumable ``posterior.h5`` into the folder.
+    ``posterior.json``, ``posterior_samples.npy``, the resumable ``posterior.h5`` and the checks' draws
+    ``posterior_draws.npy`` into the folder.
     ``forward``: the store and executor that simulate (default: the run's store, in this process)."""
-    from mpm.files import digest
     from similarity.design import SIMULATION_PRESET, expected_information_gain, rank_by_simulation, rank_setups
     from similarity.ellipsoid import alignment, ellipsoid
     from similarity.fd_hessian import fd_hessian
@@ -116,7 +199,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     from similarity.estimate import simulated_frames
     from similarity.likelihood import noise_scale
     from similarity.normals import loss_normal
-    from surrogate.emulator import LossEmulator, box, min_training, space_filling
+    from surrogate.emulator import box, space_filling
 
     def say(text):
         if progress:
@@ -139,42 +222,44 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     batches = [space_filling(x_hat, w, new_simulations, seed=seed + k) if new_simulations else np.zeros((0, 3))
                for k, w in enumerate(widths)]
     stored = archive(run, x_hat, 1.0)  # one pass over the store; each box takes its part
+    # the posterior checks' draws, listed before they are simulated: on a re-run they are no archive either
+    draws_file = run.folder / "posterior_draws.npy"
+    drawn = [np.load(draws_file)] if draws_file.is_file() else []
+
+    def simulate_draws(X):
+        drawn.append(X)
+        tmp = draws_file.with_suffix(".tmp.npy")
+        np.save(tmp, np.vstack(drawn))
+        tmp.replace(draws_file)
+        return mean_losses(run, X)
+
     for attempt, half_width in enumerate(widths):
         X_new = batches[attempt]
         in_box = np.all(np.abs(stored - x_hat) <= half_width + 1e-12, axis=1)
         X_old = np.vstack([stored[in_box], x_hat[None]])
         # a re-run finds every batch of new simulations in the store: those are not archive, so the training
         # set (and the backend) stay the same
-        known = np.vstack([*batches, X_all])
+        known = np.vstack([*batches, X_all, *drawn])
         X_old = X_old[~np.any(np.all(np.abs(X_old[:, None] - known[None]) < 1e-9, axis=2), axis=1)]
         say(f"emulator box +-{half_width:g}: {len(X_old)} simulated candidates from the store, {len(X_new)} new")
         X_add = np.vstack([X_old, X_new])
-        y_add = mean_losses(run, X_add)
-        X_all, y_all = np.vstack([X_all, X_add]), np.concatenate([y_all, y_add])
-        ok = np.isfinite(y_all)
-        X, y = X_all[ok], y_all[ok]
-        held_out = max(1, len(y) // 5)
-        if len(y) - held_out < min_training(3):
-            raise ValueError(f"{run.folder}: the emulator's box +-{half_width:g} holds {len(y)} simulated candidates "
-                             f"({len(X_old)} from the store made with this solver, {len(X_new)} new), too few to fit "
-                             f"it and hold a fifth out: raise --new-simulations")
-        test = np.zeros(len(y), bool)
-        test[rng.choice(len(y), size=held_out, replace=False)] = True
-        emu = LossEmulator(seed=seed)
-        validation = emu.validate(X[~test], y[~test], X[test], y[test])
-        noise = base_noise.with_emulator(validation.rmse)
-        say(f"emulator held-out RMSE {validation.rmse:.2e} (loss range {validation.loss_range:.2e}); "
-            f"noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}")
+        X_all, y_all = np.vstack([X_all, X_add]), np.concatenate([y_all, mean_losses(run, X_add)])
         lo, hi = box(x_hat, half_width)
-        log_prob = box_log_posterior(noise, emu, lo, hi)
-        key = digest({"X": X.round(12).tolist(), "y": y.tolist(), "noise": noise.to_dict(), "seed": seed,
-                      "nwalkers": nwalkers})[:16]
-        post = sample(log_prob, x_hat, nwalkers=nwalkers, seed=seed, min_ess=min_ess, max_steps=max_steps,
-                      backend=run.folder / "posterior.h5", backend_name=f"mcmc-{key}", progress=progress)
+        fit, X_all, y_all = checked_posterior(
+            simulate_draws, X_all, y_all, x_hat, lo, hi, base_noise, draws=new_simulations,
+            split=rng, seed=seed, stage=attempt, nwalkers=nwalkers, min_ess=min_ess, max_steps=max_steps,
+            backend=run.folder / "posterior.h5", progress=progress,
+            too_few=f"{run.folder}: the emulator's box +-{half_width:g} holds too few simulated candidates "
+                    f"({len(X_old)} from the store made with this solver, {len(X_new)} new) to fit it and hold a "
+                    f"fifth out: raise --new-simulations")
+        emu, validation, noise, post, check = fit.emulator, fit.validation, fit.noise, fit.posterior, fit.check
         cut = cut_fraction(post.samples, lo, hi)
         if cut <= MAX_CUT or half_width >= 1.0:
             break
         say(f"{100 * cut:.1f} % of the posterior lies at an inner face of the emulator's box: growing it")
+    if check is not None and not check.passed:
+        say(f"warning: after {check.rounds} checks the emulator is still {check.optimism_nats:.1f} nats optimistic on "
+            f"the posterior's draws ({check.failed} of {check.draws} simulations failed): the posterior is not trusted")
     truth = run.truth
     # ellipsoids: posterior covariance and the Laplace approximation (finite-difference Hessian)
     ell = ellipsoid(post.mean, post.cov, 0.9)
@@ -221,11 +306,11 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     summary = PosteriorSummary(
         estimate=run.estimate, estimate_normalised=x_hat.tolist(), setups=[str(s) for s in run.setups], noise=noise,
         emulator=EmulatorSummary(**validation.to_dict(), trust_region=[lo.tolist(), hi.tolist()],
-                                 half_width=half_width, cut_fraction=cut, roughness_std=emu.noise_std),
+                                 half_width=half_width, cut_fraction=cut, roughness_std=emu.noise_std, check=check),
         posterior=PosteriorStats.from_dict(post.summary()),
         truth=truth, truth_normalised=None if truth is None else normalize(truth.as_array()).tolist(),
         ellipsoid_posterior=ell, ellipsoid_laplace=laplace, normals=normals, flow_band=band, eig_grid=eig_grid,
         next_setups_eig=next_eig, next_setup_perpendicular=next_perp, next_setup_information=next_info)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     write_json(run.folder / "posterior.json", summary)
-    return Analysis(run, post, noise, emu, summary, frames, log_prob)
+    return Analysis(run, post, noise, emu, summary, frames, box_log_posterior(noise, emu, lo, hi))

@@ -48,6 +48,19 @@ class PosteriorStats(JsonRecord):
 
 
 @dataclass(kw_only=True)
+class PosteriorCheck(JsonRecord):
+    """The emulated posterior against the simulator (:func:`similarity.posterior.posterior_check`): posterior draws
+    simulated, and how much better the emulator's eq. (1) said they fit than the simulations did."""
+
+    draws: int
+    rounds: int  # fits of the emulator so far in its box (each after adding the previous round's draws)
+    optimism_nats: float  # mean of tau (L_simulated - L_emulated) over the draws
+    rms_nats: float
+    failed: int  # draws whose simulation failed
+    passed: bool
+
+
+@dataclass(kw_only=True)
 class EmulatorSummary(JsonRecord):
     """The loss emulator the posterior was sampled on: its held-out error and its trust region."""
 
@@ -60,6 +73,10 @@ class EmulatorSummary(JsonRecord):
     half_width: float | None = None  # of that box around the estimate, after growing it (None: older files)
     cut_fraction: float | None = None  # posterior fraction at an inner face of the box (None: older files)
     roughness_std: float
+    check: PosteriorCheck | None = None  # the posterior checked on simulated draws (None: no new simulations, older files)
+
+    OMIT_IF_NONE = ("check",)
+    READERS = {"check": PosteriorCheck.from_dict}
 
 
 @dataclass(kw_only=True)

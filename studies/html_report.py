@@ -284,12 +284,22 @@ img{{max-width:100%;display:block;margin:.5em 0}}h2{{border-bottom:1px solid #cc
 {noise.loss_at_optimum:.3g}, discretisation error {noise.discretisation:.3g}, emulator error
 {noise.emulator:.3g}; s<sup>2</sup> = {noise.variance:.3g}, tau = {noise.precision:.4g}.
 Emulator: {emu.n_train} training and {emu.n_test} held-out simulations, held-out RMSE {emu.rmse:.3g}
-(largest error {emu.max_abs:.3g}, loss range {emu.loss_range:.3g}).</p>
+(largest error {emu.max_abs:.3g}, loss range {emu.loss_range:.3g}).{_check_line(emu.check)}</p>
 </body></html>
 """
     path = out / "index.html"
     path.write_text(page, encoding="utf-8")
     return path
+
+
+def _check_line(check) -> str:
+    """The posterior's check against the simulator, in words ('' without one)."""
+    if check is None:
+        return ""
+    verdict = "trusted" if check.passed else "<b>not trusted</b>: the emulator still promises a better fit than the simulator gives"
+    return (f" Check: {check.draws} posterior draws simulated after {check.rounds} fit(s) of the emulator; it was "
+            f"{check.optimism_nats:+.2f} nats optimistic on them on average (RMS {check.rms_nats:.2f}), "
+            f"{check.failed} simulations failed: {verdict}.")
 
 
 def write_report(out, analysis, *, rheometer=None) -> Path:

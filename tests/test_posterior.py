@@ -253,3 +253,40 @@ def test_posterior_simulates_at_the_estimates_final_discretisation():
     assert run.forward.models == [final, final]
     posterior.discretisation_error(run)
     assert run.forward.models[2:] == [final, replace(final, cell_mm=final.cell_mm / 2)]
+
+
+def test_posterior_check_retrains_an_emulator_that_promised_too_good_a_fit():
+    """The loss has a cusp along x0; a quadratic trend through training points at x0 = 0.1, 0.5, 0.9 promises
+    the space between them too low a loss, and the posterior spreads there.  The check simulates posterior draws,
+    finds the emulator optimistic by more than CHECK_NATS; with the draws in its training set the emulator's next
+    posterior checks at least twice as well."""
+    from similarity.likelihood import NoiseScale
+    from similarity.posterior import CHECK_NATS, checked_posterior, posterior_check
+
+    def true_loss(X):
+        X = np.atleast_2d(X)
+        return 0.005 + 0.02 * np.sqrt(np.abs(X[:, 0] - 0.5)) + 0.02 * ((X[:, 1] - 0.5) ** 2 + (X[:, 2] - 0.5) ** 2)
+
+    rng = np.random.default_rng(0)
+    X = np.column_stack([np.repeat([0.1, 0.5, 0.9], 8), rng.uniform(0.1, 0.9, (24, 2))])
+    noise = NoiseScale(n_pixels=16_000, n_eff=16.0, loss_at_optimum=0.005, discretisation=0.0, emulator=0.0, frames=16)
+    calls = []
+
+    def losses(Xc):
+        calls.append(len(Xc))
+        return true_loss(Xc)
+
+    kw = dict(split=np.random.default_rng(0), seed=0, nwalkers=16, min_ess=100, max_steps=2000)
+    first, _, _ = checked_posterior(losses, X, true_loss(X), np.full(3, 0.5), np.zeros(3), np.ones(3), noise,
+                                    draws=12, rounds=0, **kw)
+    assert not first.check.passed and first.check.optimism_nats > 3 * CHECK_NATS and first.check.rounds == 1
+    last, X2, y2 = checked_posterior(losses, X, true_loss(X), np.full(3, 0.5), np.zeros(3), np.ones(3), noise,
+                                     draws=12, rounds=2, **kw)
+    assert len(X2) == len(X) + sum(calls[1:]) and np.allclose(y2, true_loss(X2))  # every draw joined the training
+    assert last.check.rounds == len(calls) - 1 and last.check.optimism_nats < 0.5 * first.check.optimism_nats
+    # the check's arithmetic: tau times the mean of simulated minus emulated loss; a failed draw fails it
+    Xc = X[:4]
+    exact = posterior_check(noise, last.emulator, Xc, last.emulator.predict(Xc) + 1e-3, rounds=1)
+    assert exact.optimism_nats == pytest.approx(noise.precision * 1e-3) and exact.failed == 0
+    failed = posterior_check(noise, last.emulator, Xc, np.r_[last.emulator.predict(Xc[:3]), np.nan], rounds=1)
+    assert failed.failed == 1 and not failed.passed

@@ -60,6 +60,12 @@ def test_posterior_summary_is_coherent(reported):
     # the emulator's box grew until the posterior no longer leans on an inner face (or covers the space)
     from similarity.posterior import MAX_CUT
     assert s["emulator"]["cut_fraction"] <= MAX_CUT or s["emulator"]["half_width"] == 1.0
+    # the posterior was checked on simulated draws (8 per fit), each of them listed before it was simulated
+    check = s["emulator"]["check"]
+    from similarity.posterior import CHECK_NATS, CHECK_ROUNDS
+    assert check["draws"] == 8 and 1 <= check["rounds"] <= CHECK_ROUNDS + 1
+    assert check["passed"] == (check["failed"] == 0 and check["optimism_nats"] <= CHECK_NATS)
+    assert len(np.load(run / "posterior_draws.npy")) >= 8 * check["rounds"]
     # its trust region is the nominal box, clipped to the material space (a face there never counts as cut)
     from surrogate.emulator import box
     lo, hi = box(s["estimate_normalised"], s["emulator"]["half_width"])
@@ -77,6 +83,8 @@ def test_posterior_summary_is_coherent(reported):
 
 def test_report_prints_the_simulated_next_setup(reported):
     run, proc = reported
+    assert re.search(r"emulator checked on 8 simulated posterior draws \(\d fits\): [+-]\d+\.\d\d nats optimistic, "
+                     r"(trusted|NOT trusted)", proc.stdout)
     info = json.loads((run / "posterior.json").read_text())["next_setup_information"]
     assert f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats" in proc.stdout
     assert "Setup of largest simulated information" in (run / "report" / "index.html").read_text()

@@ -60,6 +60,10 @@ def run(args: argparse.Namespace) -> int:
     print("posterior 90 % intervals: " + ", ".join(
         f"{k} {getattr(q5, k):.4g}..{getattr(q95, k):.4g}" for k in ("eta", "n", "sigma_y")) + " (Pa s^n, -, Pa)")
     print(f"effective samples {post.ess:.0f}, {'converged' if post.converged else 'NOT converged'}")
+    check = summary.emulator.check
+    if check is not None:
+        print(f"emulator checked on {check.draws} simulated posterior draws ({check.rounds} fits): "
+              f"{check.optimism_nats:+.2f} nats optimistic, {'trusted' if check.passed else 'NOT trusted'}")
     from studies.design_validation import reliability_line, validation
 
     nxt = summary.next_setups_eig
