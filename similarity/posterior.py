@@ -227,10 +227,13 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     drawn = [np.load(draws_file)] if draws_file.is_file() else []
 
     def simulate_draws(X):
-        drawn.append(X)
-        tmp = draws_file.with_suffix(".tmp.npy")
-        np.save(tmp, np.vstack(drawn))
-        tmp.replace(draws_file)
+        listed = np.vstack(drawn) if drawn else np.zeros((0, 3))
+        new = ~np.any(np.all(np.abs(X[:, None] - listed[None]) < 1e-12, axis=2), axis=1)
+        if new.any():  # a replay lists nothing twice
+            drawn.append(X[new])
+            tmp = draws_file.with_suffix(".tmp.npy")
+            np.save(tmp, np.vstack(drawn))
+            tmp.replace(draws_file)
         return mean_losses(run, X)
 
     for attempt, half_width in enumerate(widths):

@@ -83,6 +83,12 @@ def test_posterior_summary_is_coherent(reported):
 
 def test_report_prints_the_simulated_next_setup(reported):
     run, proc = reported
+    from similarity.posterior_summary import read_posterior
+    s = read_posterior(run)
+    i = int(np.argmin(np.abs(np.asarray(s.flow_band["shear_rate"]) - 10.0)))
+    assert s.flow_band["shear_rate"][i] == pytest.approx(10.0)  # a point of the band's grid: no interpolation
+    assert s.band_width(10.0) == pytest.approx(s.flow_band["95"][i] / s.flow_band["5"][i]) and s.band_width(10.0) >= 1
+    assert f"{s.band_width(10.0):.2f} at 10," in proc.stdout
     assert re.search(r"emulator checked on 8 simulated posterior draws \(\d fits\): [+-]\d+\.\d\d nats optimistic, "
                      r"(trusted|NOT trusted)", proc.stdout)
     info = json.loads((run / "posterior.json").read_text())["next_setup_information"]

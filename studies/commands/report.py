@@ -77,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         print("  " + reliability_line(validation("information", "reference")))
     elif info.get("error"):
         print(f"next setup by simulated information: not available ({info['error']})")
+    print("90 % flow-curve band, 95th over 5th percentile stress: " + ", ".join(
+        f"{summary.band_width(r):.2f} at {r:g}" for r in (1.0, 10.0, 100.0)) + " 1/s")
     if summary.rheometer_band_coverage is not None:
         print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * summary.rheometer_band_coverage:.0f} %")
     print(f"report: {page}")
