@@ -71,6 +71,11 @@ def discretisation_error(run: Run) -> float:
     return float(np.mean(vals)) if vals else 0.0
 
 
+def not_among(X, known, tol: float) -> np.ndarray:
+    """Mask of the rows of ``X`` that match no row of ``known`` within ``tol`` in every coordinate."""
+    return ~np.any(np.all(np.abs(X[:, None] - known[None]) < tol, axis=2), axis=1)
+
+
 def cut_fraction(samples, lo, hi) -> float:
     """Fraction of samples in the outer ``EDGE`` of the box [lo, hi] next to a face inside (0, 1)^d:
     where the box, not the likelihood, ends the posterior."""
@@ -135,7 +140,6 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
     from surrogate.emulator import LossEmulator, min_training
 
     X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
-    check = None
     for round_ in range(rounds + 1):
         ok = np.isfinite(y)
         Xf, yf = X[ok], y[ok]
@@ -227,8 +231,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     drawn = [np.load(draws_file)] if draws_file.is_file() else []
 
     def simulate_draws(X):
-        listed = np.vstack(drawn) if drawn else np.zeros((0, 3))
-        new = ~np.any(np.all(np.abs(X[:, None] - listed[None]) < 1e-12, axis=2), axis=1)
+        new = not_among(X, np.vstack([np.zeros((0, 3)), *drawn]), 1e-12)
         if new.any():  # a replay lists nothing twice
             drawn.append(X[new])
             tmp = draws_file.with_suffix(".tmp.npy")
@@ -243,7 +246,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         # a re-run finds every batch of new simulations in the store: those are not archive, so the training
         # set (and the backend) stay the same
         known = np.vstack([*batches, X_all, *drawn])
-        X_old = X_old[~np.any(np.all(np.abs(X_old[:, None] - known[None]) < 1e-9, axis=2), axis=1)]
+        X_old = X_old[not_among(X_old, known, 1e-9)]
         say(f"emulator box +-{half_width:g}: {len(X_old)} simulated candidates from the store, {len(X_new)} new")
         X_add = np.vstack([X_old, X_new])
         X_all, y_all = np.vstack([X_all, X_add]), np.concatenate([y_all, mean_losses(run, X_add)])

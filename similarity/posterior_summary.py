@@ -104,6 +104,9 @@ class PosteriorSummary(JsonRecord):
     rheometer_band_coverage: float | None = None  # set by the HTML report when given a rheometer curve
 
     OMIT_IF_NONE = ("truth", "truth_normalised", "eig_grid", "rheometer_band_coverage", "next_setup_information")
+    READERS = {"estimate": _material, "truth": _material, "noise": NoiseScale.from_dict,
+               "emulator": EmulatorSummary.from_dict, "posterior": PosteriorStats.from_dict,
+               "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict}
 
     def band_width(self, shear_rate: float) -> float:
         """Width of the 90 % flow-curve band at ``shear_rate`` [1/s]: its 95th over its 5th percentile stress
@@ -111,9 +114,6 @@ class PosteriorSummary(JsonRecord):
         r = np.log(np.asarray(self.flow_band["shear_rate"], float))
         lo, hi = (np.interp(np.log(shear_rate), r, np.log(np.asarray(self.flow_band[q], float))) for q in ("5", "95"))
         return float(np.exp(hi - lo))
-    READERS = {"estimate": _material, "truth": _material, "noise": NoiseScale.from_dict,
-               "emulator": EmulatorSummary.from_dict, "posterior": PosteriorStats.from_dict,
-               "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict}
 
 
 def read_posterior(folder) -> PosteriorSummary:
