@@ -24,8 +24,8 @@ Scale.  Nothing is hand-set: at the estimate M^ the residual *is* the noise, and
 * s^2 is a variance budget in loss units, s^2 = L(M^) + delta_disc + e_emul, where L(M^) is the
   misfit at the optimum (measurement noise and model error), delta_disc the forward model's
   discretisation error (the loss between the estimate simulated at the preset's cell width and at
-  half of it) and e_emul the emulator's held-out RMSE (surrogate/emulator.py) when the loss is
-  emulated.  Each term is an independent source of silhouette mismatch and adds to the variance.
+  half of it) and e_emul the emulator's error where the posterior can lie
+  (:func:`similarity.posterior.emulator_error`) when the loss is emulated.  Each term is an independent source of silhouette mismatch and adds to the variance.
 
 Assumptions, stated: residual patches are independent of each other and Gaussian (the binary
 residual's variance is used, its discreteness ignored); the noise does not depend on M near M^;

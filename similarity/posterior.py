@@ -9,7 +9,7 @@
 * Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
   simulations already in the store near the estimate (the CMA-ES archive) plus a scrambled-Sobol
-  batch of new ones; its held-out RMSE enters the noise variance.
+  batch of new ones; its error where the likelihood reaches (:func:`emulator_error`) enters the noise variance.
 * Check: a batch of posterior draws is simulated.  Where the emulator promised them a better fit than the
   simulator gives (by more than ``CHECK_NATS`` on average, :func:`posterior_check`) they join the training set
   and the posterior is sampled again, up to ``CHECK_ROUNDS`` times: a minimum that the emulator invented
@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
+from scipy.stats import chi2
 
 from mpm.files import write_json
 from mpm.params import Material
@@ -38,6 +39,9 @@ MAX_CUT = 0.02  # largest posterior fraction allowed in the outer EDGE of the bo
 EDGE = 0.05
 CHECK_ROUNDS = 4  # posterior checks per box: simulated draws join the training set while the emulator is optimistic
 CHECK_NATS = 1.0  # the most the emulator may promise above the simulator on the posterior's draws (mean, eq. 1)
+FOLDS = 5  # k of the k-fold cross-validation that measures the emulator's error
+REACH_NATS = float(0.5 * chi2.ppf(0.999, 3))  # 8.1: -log p (eq. 1) within which a 3-D Gaussian holds 99.9 % of its mass
+MIN_SCORED = 10  # the emulator's error is measured on at least this many of the lowest training losses
 FLOW_RATES = np.logspace(-2, 4, 121)  # 1/s, the range of the flow-curve plots
 
 
@@ -100,10 +104,34 @@ def box_log_posterior(noise, emu, lo, hi):
     return log_prob
 
 
+def within_reach(y, noise) -> np.ndarray:
+    """Mask of the losses ``y`` that the likelihood reaches: tau (L - L_min) <= ``REACH_NATS`` under eq. (1)
+    without the emulator's term (``noise``'s s^2 less e_emul), and at least the ``MIN_SCORED`` lowest."""
+    y = np.asarray(y, float)
+    gap = noise.with_emulator(0.0).precision * (y - np.min(y))
+    return (gap <= REACH_NATS) | (np.argsort(np.argsort(y)) < MIN_SCORED)
+
+
+def emulator_error(X, y, noise, split, seed: int = 0):
+    """e_emul, the emulator's error where the posterior can lie: the RMSE of the k-fold cross-validated
+    predictions (``FOLDS``, folds drawn by ``split``) of the training losses :func:`within_reach` of the best.
+    Far from the optimum the loss is steep and rough and the emulator's error large; counting it there would
+    flatten the likelihood near the optimum, where the emulator is accurate.
+    Returns a :class:`surrogate.emulator.Validation` (``n_test``: the losses scored)."""
+    from surrogate.emulator import Validation, out_of_fold
+
+    predicted = out_of_fold(X, y, FOLDS, split, seed=seed)
+    near = within_reach(y, noise)
+    return Validation.of(predicted[near], np.asarray(y)[near], len(y))
+
+
 def posterior_check(noise, emu, X, y, rounds: int) -> PosteriorCheck:
     """Emulated against simulated eq. (1) at posterior draws ``X`` (normalised) with simulated losses ``y``:
     ``optimism_nats`` is the mean of tau (L_simulated - L_emulated), positive where the emulator promises a
-    better fit than the simulator gives.  A draw whose simulation failed fails the check."""
+    better fit than the simulator gives, with tau without the emulator's term (``noise``'s e_emul is ignored):
+    the emulator's error widens the likelihood, but it does not excuse a bias.  A draw whose simulation failed
+    fails the check."""
+    noise = noise.with_emulator(0.0)
     y = np.asarray(y, float)
     ok = np.isfinite(y)
     d = noise.precision * (y[ok] - emu.predict(X[ok])) if ok.any() else np.zeros(0)
@@ -132,8 +160,8 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
     """Fit the loss emulator on (X, y), sample the posterior in the box [lo, hi] and check it against the
     simulator: ``draws`` posterior draws are simulated (``losses``: normalised (k, 3) -> mean losses (k,));
     where the emulator was optimistic there (:func:`posterior_check`) they join the training set and the
-    posterior is sampled again, at most ``rounds`` times.  ``split``: the generator of the held-out fifth;
-    the draws are chosen by ``seed``, ``stage`` (the box) and the round.
+    posterior is sampled again, at most ``rounds`` times.  ``split``: the generator of the cross-validation's
+    folds (:func:`emulator_error`); the draws are chosen by ``seed``, ``stage`` (the box) and the round.
     Returns the last :class:`CheckedFit` (its check describes its posterior; None with ``draws`` 0) and the
     training set grown by the checks' simulations."""
     from mpm.files import digest
@@ -143,16 +171,14 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
     for round_ in range(rounds + 1):
         ok = np.isfinite(y)
         Xf, yf = X[ok], y[ok]
-        held_out = max(1, len(yf) // 5)
-        if len(yf) - held_out < min_training(3):
+        if len(yf) - -(-len(yf) // FOLDS) < min_training(3):
             raise ValueError(too_few)
-        test = np.zeros(len(yf), bool)
-        test[split.choice(len(yf), size=held_out, replace=False)] = True
-        emu = LossEmulator(seed=seed)
-        validation = emu.validate(Xf[~test], yf[~test], Xf[test], yf[test])
+        validation = emulator_error(Xf, yf, base_noise, split, seed=seed)
+        emu = LossEmulator(seed=seed).fit(Xf, yf)
         noise = base_noise.with_emulator(validation.rmse)
         if progress:
-            progress({"event": "message", "text": f"emulator held-out RMSE {validation.rmse:.2e} (loss range "
+            progress({"event": "message", "text": f"emulator: {len(yf)} training losses, cross-validated RMSE "
+                      f"{validation.rmse:.2e} on the {validation.n_test} within reach of the best (their range "
                       f"{validation.loss_range:.2e}); noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}"})
         key = digest({"X": Xf.round(12).tolist(), "y": yf.tolist(), "noise": noise.to_dict(), "seed": seed,
                       "nwalkers": nwalkers})[:16]

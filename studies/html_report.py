@@ -213,6 +213,8 @@ def _fmt(v) -> str:
 
 def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, coverage=None) -> Path:
     """index.html in ``out`` referring to the PNGs by relative name (all in ``out``)."""
+    from similarity.posterior import FOLDS
+
     out = Path(out)
     post, truth = summary.posterior, summary.truth
     e = html.escape
@@ -283,8 +285,8 @@ img{{max-width:100%;display:block;margin:.5em 0}}h2{{border-bottom:1px solid #cc
 <p>Noise: {noise.frames} frames, N_eff = {noise.n_eff:.0f} independent residuals, loss at the optimum
 {noise.loss_at_optimum:.3g}, discretisation error {noise.discretisation:.3g}, emulator error
 {noise.emulator:.3g}; s<sup>2</sup> = {noise.variance:.3g}, tau = {noise.precision:.4g}.
-Emulator: {emu.n_train} training and {emu.n_test} held-out simulations, held-out RMSE {emu.rmse:.3g}
-(largest error {emu.max_abs:.3g}, loss range {emu.loss_range:.3g}).{_check_line(emu.check)}</p>
+Emulator: {emu.n_train} training simulations; {FOLDS}-fold cross-validated RMSE {emu.rmse:.3g} on the {emu.n_test} whose
+loss the likelihood reaches (largest error {emu.max_abs:.3g}, their loss range {emu.loss_range:.3g}).{_check_line(emu.check)}</p>
 </body></html>
 """
     path = out / "index.html"

@@ -63,9 +63,32 @@ class Validation:
     max_abs: float
     loss_range: float  # max - min of the held-out losses, for scale
 
+    @classmethod
+    def of(cls, predicted, y, n_train: int) -> "Validation":
+        """The error of ``predicted`` against the held-out losses ``y`` (finite ones) of an emulator trained on
+        ``n_train`` losses."""
+        predicted, y = np.asarray(predicted, float), np.asarray(y, float)
+        ok = np.isfinite(y)
+        err = predicted[ok] - y[ok]
+        return cls(int(n_train), int(ok.sum()), float(np.sqrt(np.mean(err**2))), float(np.max(np.abs(err))),
+                   float(np.ptp(y[ok])))
+
     def to_dict(self) -> dict:
         return {"n_train": self.n_train, "n_test": self.n_test, "rmse": self.rmse, "max_abs": self.max_abs,
                 "loss_range": self.loss_range}
+
+
+def out_of_fold(X, y, folds: int, rng, seed: int = 0) -> np.ndarray:
+    """k-fold cross-validation: every loss of (X, y) predicted by an emulator fitted on the other ``folds`` - 1
+    folds (drawn by the generator ``rng``), so each prediction is held out."""
+    X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
+    fold = rng.permutation(len(y)) % folds
+    predicted = np.empty(len(y))
+    for k in range(folds):
+        test = fold == k
+        if test.any():
+            predicted[test] = LossEmulator(seed=seed).fit(X[~test], y[~test]).predict(X[test])
+    return predicted
 
 
 class LossEmulator:
@@ -120,11 +143,8 @@ class LossEmulator:
     def validate(self, X_train, y_train, X_test, y_test) -> Validation:
         """Fit on the training part, measure on the held-out part, then refit on everything."""
         X_test, y_test = np.atleast_2d(np.asarray(X_test, float)), np.asarray(y_test, float)
-        ok = np.isfinite(y_test)
         self.fit(X_train, y_train)
-        err = self.predict(X_test[ok]) - y_test[ok]
-        v = Validation(int(np.isfinite(y_train).sum()), int(ok.sum()), float(np.sqrt(np.mean(err**2))),
-                       float(np.max(np.abs(err))), float(np.ptp(y_test[ok])))
+        v = Validation.of(self.predict(X_test), y_test, np.isfinite(y_train).sum())
         self.fit(np.vstack([X_train, X_test]), np.concatenate([y_train, y_test]))
         self.validation = v
         return v

@@ -290,3 +290,31 @@ def test_posterior_check_retrains_an_emulator_that_promised_too_good_a_fit():
     assert exact.optimism_nats == pytest.approx(noise.precision * 1e-3) and exact.failed == 0
     failed = posterior_check(noise, last.emulator, Xc, np.r_[last.emulator.predict(Xc[:3]), np.nan], rounds=1)
     assert failed.failed == 1 and not failed.passed
+
+
+def test_emulator_error_is_measured_where_the_likelihood_reaches():
+    """A smooth bowl whose far walls are rough: the emulator is accurate near the optimum and not far from it.
+    e_emul counts the cross-validated errors of the training losses within REACH_NATS of the best (eq. 1 without
+    e_emul), so it is the small error near the optimum, not the box-wide held-out error that would flatten the
+    likelihood there."""
+    from similarity.likelihood import NoiseScale
+    from similarity.posterior import MIN_SCORED, REACH_NATS, emulator_error, within_reach
+
+    def loss(X):
+        d = np.linalg.norm(X - 0.5, axis=1)
+        rough = 0.01 * np.sin(30 * X[:, 0]) * np.sin(30 * X[:, 1]) * np.clip((d - 0.35) / 0.1, 0, 1)
+        return 0.005 + 0.2 * d**2 + rough
+
+    X = space_filling(np.full(3, 0.5), 0.5, 160, seed=3)
+    y = loss(X)
+    noise = NoiseScale(n_pixels=16_000, n_eff=4.0, loss_at_optimum=0.005, discretisation=0.0, emulator=0.0, frames=4)
+    near = within_reach(y, noise)
+    gap = noise.precision * (y - y.min())
+    lowest = np.argsort(np.argsort(y)) < MIN_SCORED
+    assert np.array_equal(near, (gap <= REACH_NATS) | lowest) and near.sum() >= MIN_SCORED
+    assert np.all(np.linalg.norm(X[near] - 0.5, axis=1) < 0.35)  # the smooth part only
+    v = emulator_error(X, y, noise.with_emulator(1.0), np.random.default_rng(0))  # e_emul of noise is ignored
+    assert v.n_train == 160 and v.n_test == near.sum()
+    test = np.random.default_rng(0).permutation(160) < 32
+    box_wide = LossEmulator(seed=0).validate(X[~test], y[~test], X[test], y[test])
+    assert v.rmse < 0.25 * box_wide.rmse
