@@ -3,9 +3,10 @@
 * Prior: uniform on the paper's material space, i.e. on [0, 1]^3 in normalised coordinates
   (:mod:`similarity.space`), restricted to the emulator's trust region: the box estimate +- ``half_width``
   clipped to the material space, where its training simulations lie.  The box doubles, with a new batch
-  of simulations each time, while more than ``MAX_CUT`` of the posterior lies in its outer ``EDGE`` next
-  to a face inside the material space (:func:`cut_fraction`), up to the whole space.  A face on the
-  material space's own boundary is where the prior ends, so a posterior resting there is not cut.
+  of simulations each time, while the posterior reaches one of its faces inside the material space: a
+  sample in the box's outer ``EDGE`` there within ``REACH_NATS`` of the best (:func:`reaches_a_face`), up to
+  the whole space.  A face on the material space's own boundary is where the prior ends, so a posterior
+  resting there is not cut.
 * Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
   simulations already in the store near the estimate (the CMA-ES archive) plus a scrambled-Sobol
@@ -35,8 +36,7 @@ from similarity.space import denormalize, normalize
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
 MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
-MAX_CUT = 0.02  # largest posterior fraction allowed in the outer EDGE of the box at an inner face
-EDGE = 0.05
+EDGE = 0.05  # the outer fraction of the box's width next to a face in which a sample counts as at that face
 CHECK_ROUNDS = 4  # posterior checks per box: simulated draws join the training set while the emulator is optimistic
 CHECK_NATS = 1.0  # the most the emulator may promise above the simulator on the posterior's draws (mean, eq. 1)
 FOLDS = 5  # k of the k-fold cross-validation that measures the emulator's error
@@ -80,14 +80,29 @@ def not_among(X, known, tol: float) -> np.ndarray:
     return ~np.any(np.all(np.abs(X[:, None] - known[None]) < tol, axis=2), axis=1)
 
 
-def cut_fraction(samples, lo, hi) -> float:
-    """Fraction of samples in the outer ``EDGE`` of the box [lo, hi] next to a face inside (0, 1)^d:
-    where the box, not the likelihood, ends the posterior."""
+def at_inner_face(samples, lo, hi) -> np.ndarray:
+    """Mask of the samples in the outer ``EDGE`` of the box [lo, hi] next to a face inside (0, 1)^d."""
     samples, lo, hi = np.atleast_2d(samples), np.asarray(lo, float), np.asarray(hi, float)
     band = EDGE * (hi - lo)
     at_lo = (samples < lo + band) & (lo > 1e-9)
     at_hi = (samples > hi - band) & (hi < 1 - 1e-9)
-    return float(np.mean(np.any(at_lo | at_hi, axis=1))) if len(samples) else 0.0
+    return np.any(at_lo | at_hi, axis=1)
+
+
+def cut_fraction(samples, lo, hi) -> float:
+    """Fraction of samples at an inner face of the box [lo, hi] (:func:`at_inner_face`): where the box, not the
+    likelihood, ends the posterior."""
+    return float(np.mean(at_inner_face(samples, lo, hi))) if len(np.atleast_2d(samples)) else 0.0
+
+
+def reaches_a_face(samples, log_prob, lo, hi) -> bool:
+    """Whether the posterior reaches an inner face of the box [lo, hi]: a sample at one (:func:`at_inner_face`)
+    whose log-posterior ``log_prob`` (one per sample) is within ``REACH_NATS`` of the samples' best.  Then the
+    likelihood has not fallen off before the face, and the posterior goes on beyond it: the box is too small,
+    however few samples lie there (a valley that leaves the box through a saddle puts few there)."""
+    log_prob = np.asarray(log_prob, float)
+    face = at_inner_face(samples, lo, hi)
+    return bool(face.any() and np.max(log_prob[face]) >= np.max(log_prob) - REACH_NATS)
 
 
 def box_log_posterior(noise, emu, lo, hi):
@@ -286,9 +301,11 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                     f"fifth out: raise --new-simulations")
         emu, validation, noise, post, check = fit.emulator, fit.validation, fit.noise, fit.posterior, fit.check
         cut = cut_fraction(post.samples, lo, hi)
-        if cut <= MAX_CUT or half_width >= 1.0:
+        if half_width >= 1.0 or not reaches_a_face(post.samples, box_log_posterior(noise, emu, lo, hi)(post.samples),
+                                                     lo, hi):
             break
-        say(f"{100 * cut:.1f} % of the posterior lies at an inner face of the emulator's box: growing it")
+        say(f"the posterior reaches an inner face of the emulator's box ({100 * cut:.1f} % of it lies there): "
+            f"growing it")
     if check is not None and not check.passed:
         say(f"warning: after {check.rounds} checks the emulator is still {check.optimism_nats:.1f} nats optimistic on "
             f"the posterior's draws ({check.failed} of {check.draws} simulations failed): the posterior is not trusted")

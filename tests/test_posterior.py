@@ -318,3 +318,26 @@ def test_emulator_error_is_measured_where_the_likelihood_reaches():
     test = np.random.default_rng(0).permutation(160) < 32
     box_wide = LossEmulator(seed=0).validate(X[~test], y[~test], X[test], y[test])
     assert v.rmse < 0.25 * box_wide.rmse
+
+
+def test_box_grows_while_the_posterior_reaches_an_inner_face():
+    """A valley that leaves the box through a saddle puts few samples at its face, but the likelihood there is
+    within reach of the best: the box must grow.  A posterior that has fallen off before the faces, or that rests
+    on the material space's own boundary, does not make it grow, nor does a sample at a face far below the best."""
+    from similarity.posterior import REACH_NATS, cut_fraction, reaches_a_face
+
+    rng = np.random.default_rng(0)
+    core = rng.normal(0.5, 0.02, (4000, 3))
+    lo, hi = np.full(3, 0.3), np.full(3, 0.7)
+    lp = -0.5 * np.sum(((core - 0.5) / 0.02) ** 2, axis=1)
+    assert not reaches_a_face(core, lp, lo, hi) and cut_fraction(core, lo, hi) == 0.0
+    # a thin arm of the valley reaching the face at x0 = 0.3, as likely as the core: 1 % of the samples
+    arm = np.column_stack([rng.uniform(0.3, 0.5, 40), rng.normal(0.5, 0.02, (40, 2))])
+    both = np.vstack([core, arm])
+    lp_both = np.r_[lp, np.full(40, -1.0)]
+    assert cut_fraction(both, lo, hi) < 0.02 and reaches_a_face(both, lp_both, lo, hi)
+    # the same arm far below the best does not count
+    assert not reaches_a_face(both, np.r_[lp, np.full(40, -REACH_NATS - 5.0)], lo, hi)
+    # nor does the material space's own boundary: the prior ends there
+    assert not reaches_a_face(both, lp_both, np.r_[0.0, 0.3, 0.3], hi)
+

@@ -57,9 +57,9 @@ def test_posterior_summary_is_coherent(reported):
     band = s["flow_band"]
     assert np.all(np.asarray(band["5"]) <= np.asarray(band["95"]))
     assert s["noise"]["n_eff"] >= s["noise"]["frames"] and s["emulator"]["n_test"] >= 1
-    # the emulator's box grew until the posterior no longer leans on an inner face (or covers the space)
-    from similarity.posterior import MAX_CUT
-    assert s["emulator"]["cut_fraction"] <= MAX_CUT or s["emulator"]["half_width"] == 1.0
+    # the emulator's box grew until the posterior no longer reaches an inner face (or covers the space): samples
+    # there would be more than REACH_NATS below the best, where a Gaussian holds 0.1 % of its mass
+    assert s["emulator"]["cut_fraction"] <= 0.005 or s["emulator"]["half_width"] == 1.0
     # the posterior was checked on simulated draws (8 per fit), each of them listed before it was simulated
     check = s["emulator"]["check"]
     from similarity.posterior import CHECK_NATS, CHECK_ROUNDS
