@@ -260,7 +260,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     say(f"discretisation error (loss, cell vs half cell): {delta:.5f}")
     base_noise = noise_scale(frames, [e.frames for e in run.experiments], discretisation=delta, method=noise_count)
     # The emulator's box grows (half-width doubled, a new space-filling batch each time) while the posterior
-    # leans on one of its inner faces: a cut posterior is the box's, not the footage's.
+    # reaches one of its inner faces: a cut posterior is the box's, not the footage's.
     X_all, y_all = np.zeros((0, 3)), np.zeros(0)
     rng = np.random.default_rng(seed)
     widths = [min(half_width * 2.0**k, 1.0) for k in range(MAX_EXPANSIONS + 1)]
