@@ -186,7 +186,8 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
     for round_ in range(rounds + 1):
         ok = np.isfinite(y)
         Xf, yf = X[ok], y[ok]
-        if len(yf) - -(-len(yf) // FOLDS) < min_training(3):
+        largest_fold = -(-len(yf) // FOLDS)  # ceil: each fold's emulator trains on the rest
+        if len(yf) - largest_fold < min_training(3):
             raise ValueError(too_few)
         validation = emulator_error(Xf, yf, base_noise, split, seed=seed)
         emu = LossEmulator(seed=seed).fit(Xf, yf)
