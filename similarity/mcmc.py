@@ -31,6 +31,7 @@ class Posterior:
     converged: bool
     wall_seconds: float
     acceptance: float = float("nan")
+    log_prob: np.ndarray | None = None  # the sampled log-posterior at each sample, as emcee computed it
 
     @property
     def ess(self) -> float:
@@ -150,7 +151,7 @@ def sample(log_prob: Callable[[np.ndarray], np.ndarray], x0, *, nwalkers: int = 
     burn = min(int(2 * t), sampler.iteration - 1)
     chain = sampler.get_chain(discard=burn, flat=True)
     return Posterior(chain, tau, int(sampler.iteration), nwalkers, burn, converged, time.perf_counter() - t0,
-                     float(np.mean(sampler.acceptance_fraction)))
+                     float(np.mean(sampler.acceptance_fraction)), sampler.get_log_prob(discard=burn, flat=True))
 
 
 def gaussian_moments_check(mean, cov, **kwargs) -> Posterior:

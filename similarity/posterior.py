@@ -302,8 +302,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                     f"fifth out: raise --new-simulations")
         emu, validation, noise, post, check = fit.emulator, fit.validation, fit.noise, fit.posterior, fit.check
         cut = cut_fraction(post.samples, lo, hi)
-        if half_width >= 1.0 or not reaches_a_face(post.samples, box_log_posterior(noise, emu, lo, hi)(post.samples),
-                                                     lo, hi):
+        if half_width >= 1.0 or not reaches_a_face(post.samples, post.log_prob, lo, hi):
             break
         say(f"the posterior reaches an inner face of the emulator's box ({100 * cut:.1f} % of it lies there): "
             f"growing it")

@@ -202,6 +202,9 @@ def test_killed_run_resumes_from_its_backend(tmp_path):
     chain_b = emcee.backends.HDFBackend(str(tmp_path / "fresh.h5"), read_only=True).get_chain()
     assert np.array_equal(chain_a, chain_b)  # the resumed chain is the uninterrupted one
     assert fresh.iterations == 300
+    for post in (resumed, fresh):  # each kept sample carries the log-posterior emcee computed for it
+        assert post.log_prob.shape == (len(post.samples),)
+        np.testing.assert_allclose(post.log_prob, _log_prob(post.samples), rtol=1e-12)
 
 
 def test_corrupt_backend_is_a_one_line_error(tmp_path):
