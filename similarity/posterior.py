@@ -361,5 +361,6 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         ellipsoid_posterior=ell, ellipsoid_laplace=laplace, normals=normals, flow_band=band, eig_grid=eig_grid,
         next_setups_eig=next_eig, next_setup_perpendicular=next_perp, next_setup_information=next_info)
     np.save(run.folder / "posterior_samples.npy", post.samples)
+    np.save(run.folder / "posterior_log_prob.npy", post.log_prob)  # one log-posterior per sample
     write_json(run.folder / "posterior.json", summary)
     return Analysis(run, post, noise, emu, summary, frames, box_log_posterior(noise, emu, lo, hi))

@@ -47,6 +47,7 @@ SETTINGS = ("same", "finer")
 LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliability curve
 NOMINAL = 0.9  # the level the acceptance test names
 REGIONS = ("hpd", "ellipsoid", "intervals")
+TEMPERING = (1.0, 1.5, 2.0, 3.0, 4.0)  # N_eff times k: the likelihood of eq. (1) raised to the power k
 PARAMETERS = ("eta", "n", "sigma_y")
 
 
@@ -118,6 +119,23 @@ def coverage(levels_of_truth, nominal=LEVELS) -> np.ndarray:
     return np.mean(v[:, None] <= np.asarray(nominal, float)[None, :] + 1e-12, axis=0)
 
 
+def tempered_level(log_prob, level: float, k: float) -> tuple[float, float]:
+    """The truth's HPD credible level had N_eff been ``k`` times the one counted, from the samples as run.
+
+    Eq. (1) with k N_eff is the likelihood raised to the power k, so under the uniform prior the posterior
+    becomes p^k / Z: the same samples, weighted by p^(k-1).  Its HPD regions are p's (the same ordering), so the
+    samples denser than the truth are still the top fraction ``level`` by ``log_prob`` (the sampled log-posterior,
+    one per sample); the new level is their share of the weight.  Also returns the weights' effective sample
+    size as a fraction of the samples (Kish), which says how far the reweighting can be trusted.  An
+    approximation: the emulator's box and checks stay as they ran at k = 1."""
+    lp = np.sort(np.asarray(log_prob, float))[::-1]
+    if lp.size == 0 or not np.isfinite(lp[0]):
+        raise ValueError("need samples with a finite log-posterior")
+    w = np.exp((float(k) - 1.0) * (lp - lp[0]))
+    m = int(round(float(level) * lp.size))
+    return float(w[:m].sum() / w.sum()), float(w.sum() ** 2 / np.sum(w * w) / lp.size)
+
+
 # -- one case ------------------------------------------------------------------------------------------
 @dataclass
 class CalibrationRecord(JsonRecord):
@@ -145,8 +163,9 @@ class CalibrationRecord(JsonRecord):
     wall_seconds: dict  # estimate, total
     simulations_run: int | None
     width_90: float | None = None
+    tempered: dict | None = None  # str(k) -> [HPD level, weights' ESS fraction] (:func:`tempered_level`)
 
-    OMIT_IF_NONE = ("width_90",)
+    OMIT_IF_NONE = ("width_90", "tempered")
     READERS = {"truth": lambda d: Material(**d), "estimate": lambda d: Material(**d)}
 
 
@@ -224,6 +243,9 @@ class SettingSummary(JsonRecord):
     median_ess: float
     converged: int
     mean_wall_seconds: float
+    tempered: dict | None = None  # str(k) -> cases, inside_90, median_level, below_0_4, min_ess_fraction
+
+    OMIT_IF_NONE = ("tempered",)
 
 
 @dataclass
@@ -297,6 +319,10 @@ class CalibrationStudy(Study):
             if r.width_90 is None and samples.is_file():
                 q = np.quantile(np.load(samples), [0.05, 0.95], axis=0)
                 r.width_90 = float(np.mean(q[1] - q[0]))
+            log_prob = samples.with_name("posterior_log_prob.npy")
+            if r.tempered is None and log_prob.is_file():
+                lp = np.load(log_prob)
+                r.tempered = {f"{k:g}": list(tempered_level(lp, r.credible_level["hpd"], k)) for k in TEMPERING}
         return found
 
     def plots(self, recs, summ) -> None:
@@ -331,6 +357,7 @@ class CalibrationStudy(Study):
                 median_ess=float(np.median([r.posterior["ess"] for r in rs])),
                 converged=int(sum(bool(r.posterior["converged"]) for r in rs)),
                 mean_wall_seconds=float(np.mean([r.wall_seconds["total"] for r in rs])),
+                tempered=tempered_summary([r.tempered for r in rs if r.tempered is not None]),
             )
         return CalibrationSummary(out)
 
@@ -358,7 +385,31 @@ class CalibrationStudy(Study):
                          f"{inside['intervals']}/{n} ({100 * cov['intervals']:.0f} %) | "
                          + " | ".join(f"{100 * v.coverage_90_per_parameter[p]:.0f} %" for p in PARAMETERS)
                          + f" | {v.truth_in_trust_region}/{n} | {v.median_e_rel:.3f} | {v.median_width_90:.2f} |")
+        if any(v.tempered for v in summ.settings.values()):
+            lines += ["", "Had N_eff been k times the one counted (the same samples reweighted, `tempered_level`):", "",
+                      "| setting | k | cases | truth in 90 % HPD | median credible level | levels below 0.4 | "
+                      "smallest weights' ESS |", "|---|---:|---:|---:|---:|---:|---:|"]
+            for s, v in summ.settings.items():
+                for k, t in (v.tempered or {}).items():
+                    lines.append(f"| {s} | {k} | {t['cases']} | {t['inside_90']}/{t['cases']} | "
+                                 f"{t['median_level']:.2f} | {t['below_0_4']}/{t['cases']} | "
+                                 f"{100 * t['min_ess_fraction']:.0f} % |")
         return "\n".join(lines) + "\n"
+
+
+def tempered_summary(per_case: list) -> dict | None:
+    """Per k of :data:`TEMPERING`, over the cases' ``tempered`` levels: how many truths the 90 % HPD region
+    holds, the median level (0.5 if calibrated), how many lie below 0.4 (40 % if calibrated) and the smallest
+    weights' ESS fraction."""
+    if not per_case:
+        return None
+    out = {}
+    for k in per_case[0]:
+        lv = np.array([t[k][0] for t in per_case])
+        out[k] = {"cases": len(lv), "inside_90": int(np.sum(lv <= NOMINAL + 1e-12)),
+                  "median_level": float(np.median(lv)), "below_0_4": int(np.sum(lv < 0.4)),
+                  "min_ess_fraction": float(min(t[k][1] for t in per_case))}
+    return out
 
 
 def plot_reliability(path, summ: CalibrationSummary) -> Path:

@@ -58,6 +58,20 @@ def test_truth_inside_and_outside_the_90_percent_region(gaussian):
     assert cut["hpd"] == 1.0 and cut["ellipsoid"] < 0.05
 
 
+@pytest.mark.parametrize("k", [1.0, 2.0, 3.0])
+@pytest.mark.parametrize("level", [0.2, 0.6])
+def test_tempered_level_is_the_gaussians_at_k_times_the_precision(level, k):
+    # N(0, I) samples with log p = -|x|^2 / 2; p^k is N(0, I / k), whose level at the radius r is chi2_3(k r^2)
+    x = np.random.default_rng(2).standard_normal((200000, 3))
+    lp = -0.5 * np.sum(x * x, axis=1)
+    r2 = chi2.ppf(level, 3)
+    got, ess = C.tempered_level(lp, float(np.mean(lp > -0.5 * r2)), k)
+    assert got == pytest.approx(chi2.cdf(k * r2, 3), abs=0.01)
+    # Kish ESS of the weights p^(k-1): (E w)^2 / E w^2 = (k^2 / (2k - 1))^(-3/2) for this Gaussian
+    assert ess == pytest.approx((k * k / (2 * k - 1)) ** -1.5, rel=0.05)
+    assert C.tempered_level(lp, 1.0, k)[0] == 1.0  # a truth outside the support stays outside
+
+
 def test_per_parameter_interval_levels(gaussian):
     x, _ = gaussian
     sd = np.sqrt(np.diag(COV))
@@ -116,8 +130,12 @@ def test_tiny_study_runs_and_resumes_without_simulating(tmp_path):
     for c in res["cases"]:
         assert 0.0 <= c["credible_level"]["hpd"] <= 1.0 and c["posterior"]["ess"] > 0
         assert c["footage_cell_mm"] == 5.0 and c["noise"]["variance"] > 0
+        assert c["tempered"]["1"][0] == pytest.approx(c["credible_level"]["hpd"])  # k = 1: the level as run
+        assert c["tempered"]["4"][0] >= c["tempered"]["2"][0] - 1e-12  # a sharper posterior: the truth no nearer
+    assert s["tempered"]["1"]["inside_90"] == s["inside_90"]["hpd"]
     assert (out / "reliability.png").stat().st_size > 5000
     assert "| same | 2 |" in (out / "calibration.md").read_text()
+    assert "| same | 2 | 2 |" in (out / "calibration.md").read_text()  # the tempering table, k = 2
     # killed after the simulations of case 1 but before its record: nothing is simulated again
     (out / "cases" / "same" / "case_01" / "case.json").unlink()
     proc = _study(out, log)
