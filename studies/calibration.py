@@ -47,7 +47,7 @@ SETTINGS = ("same", "finer")
 LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliability curve
 NOMINAL = 0.9  # the level the acceptance test names
 REGIONS = ("hpd", "ellipsoid", "intervals")
-TEMPERING = (1.0, 1.5, 2.0, 3.0, 4.0)  # N_eff times k: the likelihood of eq. (1) raised to the power k
+TEMPERING = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)  # N_eff times k: the likelihood of eq. (1) raised to the power k
 PARAMETERS = ("eta", "n", "sigma_y")
 
 
