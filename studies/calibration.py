@@ -8,21 +8,8 @@ like the emulation study's), one random setup each.  Per case and setting:
 2. a one-setup estimate (Algorithm 1, one stage, the preset's model);
 3. the posterior exactly as ``virheo report`` computes it (:func:`similarity.posterior.analyse`: noise
    scale with the discretisation error, emulator from the store plus a space-filling batch, emcee);
-4. the credible level of the truth in three kinds of region (:func:`credible_levels`).
-
-The *credible level* of the truth is the smallest level whose region contains it; the truth lies in the
-level-a region iff its credible level is <= a, so the empirical coverage at every level (the reliability
-curve) follows from one number per case and region.  Regions, all in the normalised space:
-
-* ``hpd``: the highest-posterior-density region {x : p(x | footage) >= c_a}, c_a set so that it holds a
-  fraction a of the samples; the truth's level is the fraction of samples denser than the truth.  This is the
-  smallest region of posterior mass a, the one "the 90 % credible region" names; it follows the posterior's
-  curved similarity valley.  Outside the emulator's trust region the posterior is zero, so a truth there lies
-  in no region (level 1).
-* ``ellipsoid``: the Mahalanobis ellipsoid of the samples' mean and covariance holding a fraction a of them
-  (the shape of the ellipsoid ``virheo report`` draws).
-* ``intervals``: per parameter, the central interval between the (1-a)/2 and (1+a)/2 quantiles; the joint
-  level is the largest of the three (all three intervals hold the truth).
+4. the credible level of the truth in three kinds of region, and in the HPD region had N_eff been k times
+   the one counted (:mod:`studies.credible`).
 
 Every simulation goes through the store and every finished case is kept in ``case.json``, so a killed study
 resumes where it stopped.  Writes ``calibration.json``, ``calibration.md`` and ``reliability.png``.
@@ -40,15 +27,12 @@ from mpm.files import JsonRecord
 from mpm.params import Material, Setup
 from similarity.posterior import NOISE_COUNT
 from similarity.space import denormalize, e_rel, normalize
+from studies.credible import (LEVELS, NOMINAL, PARAMETERS, REGIONS, TEMPERING, coverage, credible_levels,
+                               tempered_level, tempered_summary)
 from studies.report import save_figure, write_json
 from studies.study import Study
 
 SETTINGS = ("same", "finer")
-LEVELS = np.round(np.arange(0.1, 0.95, 0.1), 2)  # nominal levels of the reliability curve
-NOMINAL = 0.9  # the level the acceptance test names
-REGIONS = ("hpd", "ellipsoid", "intervals")
-TEMPERING = (1.0, 2.0, 3.0, 4.0, 6.0, 8.0)  # N_eff times k: the likelihood of eq. (1) raised to the power k
-PARAMETERS = ("eta", "n", "sigma_y")
 
 
 # -- design --------------------------------------------------------------------------------------------
@@ -82,58 +66,6 @@ def footage_preset(preset, setting: str):
     model = preset.final.resolved()
     return replace(preset, name=f"{preset.name}-fine", cell_mm=model.cell_mm / 2.0, ppc=model.ppc,
                    finish_generations=0)
-
-
-# -- coverage bookkeeping ----------------------------------------------------------------------------------
-def credible_levels(samples, truth, *, log_density=None) -> dict:
-    """Credible level of ``truth`` (normalised, (3,)) under posterior ``samples`` (k, 3) for every region kind
-    (module docstring) and per parameter.  ``log_density``: the unnormalised log-posterior, vectorised
-    ((m, 3) -> (m,), -inf outside the support); without it the ``hpd`` level is not computed (None)."""
-    X = np.asarray(samples, float)
-    t = np.asarray(truth, float)
-    if X.ndim != 2 or X.shape[1] != t.size or len(X) < 2:
-        raise ValueError("need at least two samples (k, d) and a truth of d values")
-    out: dict = {}
-    if log_density is not None:
-        lp = np.asarray(log_density(X), float)
-        lt = float(np.asarray(log_density(t[None]), float)[0])
-        out["hpd"] = 1.0 if not np.isfinite(lt) else float(np.mean(lp > lt))
-    else:
-        out["hpd"] = None
-    d = X - X.mean(axis=0)
-    prec = np.linalg.pinv(np.cov(X, rowvar=False))
-    d2 = np.einsum("ij,jk,ik->i", d, prec, d)
-    dt = t - X.mean(axis=0)
-    out["ellipsoid"] = float(np.mean(d2 < dt @ prec @ dt))
-    per = np.abs(2.0 * np.mean(X <= t, axis=0) - 1.0)  # central interval of level a holds t iff |2F - 1| <= a
-    out["intervals"] = float(np.max(per))
-    out["per_parameter"] = dict(zip(PARAMETERS, per.tolist()))
-    return out
-
-
-def coverage(levels_of_truth, nominal=LEVELS) -> np.ndarray:
-    """Empirical coverage at each nominal level: the fraction of cases whose credible level is <= it."""
-    v = np.asarray([1.0 if x is None else x for x in levels_of_truth], float)
-    if v.size == 0:
-        return np.full(np.shape(nominal), np.nan)
-    return np.mean(v[:, None] <= np.asarray(nominal, float)[None, :] + 1e-12, axis=0)
-
-
-def tempered_level(log_prob, level: float, k: float) -> tuple[float, float]:
-    """The truth's HPD credible level had N_eff been ``k`` times the one counted, from the samples as run.
-
-    Eq. (1) with k N_eff is the likelihood raised to the power k, so under the uniform prior the posterior
-    becomes p^k / Z: the same samples, weighted by p^(k-1).  Its HPD regions are p's (the same ordering), so the
-    samples denser than the truth are still the top fraction ``level`` by ``log_prob`` (the sampled log-posterior,
-    one per sample); the new level is their share of the weight.  Also returns the weights' effective sample
-    size as a fraction of the samples (Kish), which says how far the reweighting can be trusted.  An
-    approximation: the emulator's box and checks stay as they ran at k = 1."""
-    lp = np.sort(np.asarray(log_prob, float))[::-1]
-    if lp.size == 0 or not np.isfinite(lp[0]):
-        raise ValueError("need samples with a finite log-posterior")
-    w = np.exp((float(k) - 1.0) * (lp - lp[0]))
-    m = int(round(float(level) * lp.size))
-    return float(w[:m].sum() / w.sum()), float(w.sum() ** 2 / np.sum(w * w) / lp.size)
 
 
 # -- one case ------------------------------------------------------------------------------------------
@@ -395,21 +327,6 @@ class CalibrationStudy(Study):
                                  f"{t['median_level']:.2f} | {t['below_0_4']}/{t['cases']} | "
                                  f"{100 * t['min_ess_fraction']:.0f} % |")
         return "\n".join(lines) + "\n"
-
-
-def tempered_summary(per_case: list) -> dict | None:
-    """Per k of :data:`TEMPERING`, over the cases' ``tempered`` levels: how many truths the 90 % HPD region
-    holds, the median level (0.5 if calibrated), how many lie below 0.4 (40 % if calibrated) and the smallest
-    weights' ESS fraction."""
-    if not per_case:
-        return None
-    out = {}
-    for k in per_case[0]:
-        lv = np.array([t[k][0] for t in per_case])
-        out[k] = {"cases": len(lv), "inside_90": int(np.sum(lv <= NOMINAL + 1e-12)),
-                  "median_level": float(np.median(lv)), "below_0_4": int(np.sum(lv < 0.4)),
-                  "min_ess_fraction": float(min(t[k][1] for t in per_case))}
-    return out
 
 
 def plot_reliability(path, summ: CalibrationSummary) -> Path:

@@ -1,5 +1,5 @@
-"""Calibration study: the credible-level bookkeeping against a Gaussian with known regions, the design, and a
-tiny study on the fake forward model that resumes without simulating again."""
+"""Calibration study: the credible-level bookkeeping (studies/credible.py) against a Gaussian with known regions,
+the design, and a tiny study on the fake forward model that resumes without simulating again."""
 import json
 import os
 import subprocess
@@ -12,6 +12,7 @@ from scipy.stats import chi2, norm
 
 from similarity.space import normalize
 from studies import calibration as C
+from studies import credible as CR
 
 TESTS = Path(__file__).resolve().parent
 ENV = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
@@ -42,7 +43,7 @@ def _at_mahalanobis(level):
 @pytest.mark.parametrize("level", [0.3, 0.5, 0.9])
 def test_credible_level_of_a_point_on_a_known_region_boundary(gaussian, level):
     x, logp = gaussian
-    lv = C.credible_levels(x, _at_mahalanobis(level), log_density=logp)
+    lv = CR.credible_levels(x, _at_mahalanobis(level), log_density=logp)
     # for a Gaussian the HPD region and the Mahalanobis ellipsoid are the same set {d^2 <= chi2_3(level)}
     assert lv["hpd"] == pytest.approx(level, abs=0.01)
     assert lv["ellipsoid"] == pytest.approx(level, abs=0.01)
@@ -50,11 +51,11 @@ def test_credible_level_of_a_point_on_a_known_region_boundary(gaussian, level):
 
 def test_truth_inside_and_outside_the_90_percent_region(gaussian):
     x, logp = gaussian
-    inside = C.credible_levels(x, _at_mahalanobis(0.8), log_density=logp)
-    outside = C.credible_levels(x, _at_mahalanobis(0.97), log_density=logp)
-    assert inside["hpd"] <= C.NOMINAL < outside["hpd"]
+    inside = CR.credible_levels(x, _at_mahalanobis(0.8), log_density=logp)
+    outside = CR.credible_levels(x, _at_mahalanobis(0.97), log_density=logp)
+    assert inside["hpd"] <= CR.NOMINAL < outside["hpd"]
     # a truth where the posterior is zero (outside the emulator's trust region) lies in no region
-    cut = C.credible_levels(x, MEAN, log_density=lambda y: np.where(np.atleast_2d(y)[:, 0] > 0.39, -np.inf, 0.0))
+    cut = CR.credible_levels(x, MEAN, log_density=lambda y: np.where(np.atleast_2d(y)[:, 0] > 0.39, -np.inf, 0.0))
     assert cut["hpd"] == 1.0 and cut["ellipsoid"] < 0.05
 
 
@@ -65,11 +66,11 @@ def test_tempered_level_is_the_gaussians_at_k_times_the_precision(level, k):
     x = np.random.default_rng(2).standard_normal((200000, 3))
     lp = -0.5 * np.sum(x * x, axis=1)
     r2 = chi2.ppf(level, 3)
-    got, ess = C.tempered_level(lp, float(np.mean(lp > -0.5 * r2)), k)
+    got, ess = CR.tempered_level(lp, float(np.mean(lp > -0.5 * r2)), k)
     assert got == pytest.approx(chi2.cdf(k * r2, 3), abs=0.01)
     # Kish ESS of the weights p^(k-1): (E w)^2 / E w^2 = (k^2 / (2k - 1))^(-3/2) for this Gaussian
     assert ess == pytest.approx((k * k / (2 * k - 1)) ** -1.5, rel=0.05)
-    assert C.tempered_level(lp, 1.0, k)[0] == 1.0  # a truth outside the support stays outside
+    assert CR.tempered_level(lp, 1.0, k)[0] == 1.0  # a truth outside the support stays outside
 
 
 def test_per_parameter_interval_levels(gaussian):
@@ -77,7 +78,7 @@ def test_per_parameter_interval_levels(gaussian):
     sd = np.sqrt(np.diag(COV))
     # eta at its 97.5 % quantile: outside the 90 % central interval, inside the 96 % one; n, sigma_y at the median
     t = MEAN + np.array([norm.ppf(0.975) * sd[0], 0.0, 0.0])
-    lv = C.credible_levels(x, t)
+    lv = CR.credible_levels(x, t)
     assert lv["hpd"] is None
     assert lv["per_parameter"]["eta"] == pytest.approx(0.95, abs=0.01)
     assert lv["per_parameter"]["n"] < 0.02 and lv["per_parameter"]["sigma_y"] < 0.02
@@ -85,7 +86,7 @@ def test_per_parameter_interval_levels(gaussian):
 
 
 def test_coverage_counts_levels_at_or_below_the_nominal():
-    cov = C.coverage([0.05, 0.5, 0.95, None], nominal=[0.1, 0.5, 0.9, 1.0])
+    cov = CR.coverage([0.05, 0.5, 0.95, None], nominal=[0.1, 0.5, 0.9, 1.0])
     assert cov.tolist() == [0.25, 0.5, 0.5, 1.0]
 
 
@@ -124,8 +125,8 @@ def test_tiny_study_runs_and_resumes_without_simulating(tmp_path):
     s = res["summary"]["same"]
     assert s["cases"] == 2 and "finer" not in res["summary"]
     levels = [c["credible_level"] for c in res["cases"]]
-    assert s["inside_90"]["hpd"] == sum(lv["hpd"] <= C.NOMINAL for lv in levels)
-    assert s["reliability"]["levels"] == pytest.approx(list(C.LEVELS))
+    assert s["inside_90"]["hpd"] == sum(lv["hpd"] <= CR.NOMINAL for lv in levels)
+    assert s["reliability"]["levels"] == pytest.approx(list(CR.LEVELS))
     assert all(np.diff(s["reliability"]["hpd"]) >= 0)  # coverage cannot fall as the level grows
     for c in res["cases"]:
         assert 0.0 <= c["credible_level"]["hpd"] <= 1.0 and c["posterior"]["ess"] > 0

@@ -25,6 +25,7 @@ from mpm.params import Material, Setup
 from similarity.cma_stage import Generation, Stage, StageState, _strategy
 from similarity.posterior_summary import PosteriorSummary, read_posterior
 from studies import calibration as C
+from studies import credible as CR
 from studies import design_information as DI
 from studies import design_study as D
 
@@ -89,7 +90,7 @@ def test_calibration_case_file_from_before_is_finished_and_loads(tmp_path):
     assert rec.to_dict() == old
     summ = study.summary([rec])
     s = summ.settings["same"]
-    assert s.cases == 1 and s.inside_90["hpd"] == int(old["credible_level"]["hpd"] <= C.NOMINAL)
+    assert s.cases == 1 and s.inside_90["hpd"] == int(old["credible_level"]["hpd"] <= CR.NOMINAL)
     assert summ.to_dict()["same"]["median_e_rel"] == old["e_rel"]
 
 
