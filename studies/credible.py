@@ -88,7 +88,7 @@ def tempered_summary(per_case: list) -> dict | None:
     out = {}
     for k in per_case[0]:
         lv = np.array([t[k][0] for t in per_case])
-        out[k] = {"cases": len(lv), "inside_90": int(np.sum(lv <= NOMINAL + 1e-12)),
+        out[k] = {"cases": len(lv), "inside_90": int(round(len(lv) * coverage(lv, [NOMINAL])[0])),
                   "median_level": float(np.median(lv)), "below_0_4": int(np.sum(lv < 0.4)),
                   "min_ess_fraction": float(min(t[k][1] for t in per_case))}
     return out
