@@ -28,7 +28,8 @@ from scipy.stats import chi2
 
 from mpm.files import write_json
 from mpm.params import Material
-from similarity.mcmc import QUANTILES, Posterior, check_backend, sample
+from similarity.flow_band import flow_band
+from similarity.mcmc import Posterior, check_backend, sample
 from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, PosteriorStats, PosteriorSummary,  # noqa: F401
                                           read_posterior)
 from similarity.run_folder import Run, load_run, read_result  # noqa: F401 (re-exported)
@@ -42,7 +43,6 @@ CHECK_NATS = 1.0  # the most the emulator may promise above the simulator on the
 FOLDS = 5  # k of the k-fold cross-validation that measures the emulator's error
 REACH_NATS = float(0.5 * chi2.ppf(0.999, 3))  # 8.1: -log p (eq. 1) within which a 3-D Gaussian holds 99.9 % of its mass
 MIN_SCORED = 10  # the emulator's error is measured on at least this many of the lowest training losses
-FLOW_RATES = np.logspace(-2, 4, 121)  # 1/s, the range of the flow-curve plots
 
 
 # -- posterior inputs of a run --------------------------------------------------------------------
@@ -327,9 +327,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         except ValueError:
             normals[str(s)] = None
     # flow-curve band
-    stress = np.array([Material.from_array(m).stress(FLOW_RATES) for m in post.si()[:: max(1, len(post.samples) // 2000)]])
-    band = {"shear_rate": FLOW_RATES.tolist(),
-            **{f"{int(100 * p)}": np.quantile(stress, p, axis=0).tolist() for p in QUANTILES}}
+    band = flow_band(post.si())
     # next setups by expected information gain (and by perpendicularity, for comparison)
     eig_grid = None
     try:

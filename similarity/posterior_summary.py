@@ -15,6 +15,7 @@ import numpy as np
 from mpm.files import JsonRecord
 from mpm.params import Material
 from similarity.ellipsoid import Ellipsoid
+from similarity.flow_band import band_width
 from similarity.likelihood import NoiseScale
 
 
@@ -109,11 +110,8 @@ class PosteriorSummary(JsonRecord):
                "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict}
 
     def band_width(self, shear_rate: float) -> float:
-        """Width of the 90 % flow-curve band at ``shear_rate`` [1/s]: its 95th over its 5th percentile stress
-        (interpolated in log rate)."""
-        r = np.log(np.asarray(self.flow_band["shear_rate"], float))
-        lo, hi = (np.interp(np.log(shear_rate), r, np.log(np.asarray(self.flow_band[q], float))) for q in ("5", "95"))
-        return float(np.exp(hi - lo))
+        """Width of the 90 % flow-curve band at ``shear_rate`` [1/s] (:func:`similarity.flow_band.band_width`)."""
+        return band_width(self.flow_band, shear_rate)
 
 
 def read_posterior(folder) -> PosteriorSummary:

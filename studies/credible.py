@@ -62,6 +62,16 @@ def coverage(levels_of_truth, nominal=LEVELS) -> np.ndarray:
     return np.mean(v[:, None] <= np.asarray(nominal, float)[None, :] + 1e-12, axis=0)
 
 
+def tempering_weights(log_prob, k: float) -> np.ndarray:
+    """Weights that make samples of the posterior p (``log_prob``: each sample's log p, up to a constant) samples
+    of p^k / Z, the posterior with N_eff of eq. (1) times ``k`` under the uniform prior: p^(k-1), scaled so that
+    the densest sample weighs 1."""
+    lp = np.asarray(log_prob, float)
+    if lp.size == 0 or not np.isfinite(lp).any():
+        raise ValueError("need samples with a finite log-posterior")
+    return np.exp((float(k) - 1.0) * (lp - np.max(lp[np.isfinite(lp)])))
+
+
 def tempered_level(log_prob, level: float, k: float) -> tuple[float, float]:
     """The truth's HPD credible level had N_eff been ``k`` times the one counted, from the samples as run.
 
@@ -72,9 +82,7 @@ def tempered_level(log_prob, level: float, k: float) -> tuple[float, float]:
     size as a fraction of the samples (Kish), which says how far the reweighting can be trusted.  An
     approximation: the emulator's box and checks stay as they ran at k = 1."""
     lp = np.sort(np.asarray(log_prob, float))[::-1]
-    if lp.size == 0 or not np.isfinite(lp[0]):
-        raise ValueError("need samples with a finite log-posterior")
-    w = np.exp((float(k) - 1.0) * (lp - lp[0]))
+    w = tempering_weights(lp, k)
     m = int(round(float(level) * lp.size))
     return float(w[:m].sum() / w.sum()), float(w.sum() ** 2 / np.sum(w * w) / lp.size)
 

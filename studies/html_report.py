@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from similarity.flow_band import band_coverage
 from studies.report import overlay, save_figure
 
 NAMES = ("eta", "n", "sigma_y")
@@ -95,20 +96,6 @@ def flow_band_png(path, summary, rheometer=None) -> Path:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7, loc="upper left")
     return save_figure(fig, path)
-
-
-def band_coverage(summary, curve, lo: float = 1.0, hi: float = 100.0) -> float:
-    """Fraction of the rheometer points with lo <= rate <= hi that lie inside the 90 % band."""
-    band = summary.flow_band
-    rate = np.log(np.asarray(band["shear_rate"]))
-    mask = (curve.shear_rate >= lo) & (curve.shear_rate <= hi)
-    if not mask.any():
-        raise ValueError(f"{curve.name}: no rheometer points between {lo:g} and {hi:g} 1/s")
-    r = np.log(curve.shear_rate[mask])
-    b5 = np.interp(r, rate, np.asarray(band["5"]))
-    b95 = np.interp(r, rate, np.asarray(band["95"]))
-    s = curve.shear_stress[mask]
-    return float(np.mean((s >= b5) & (s <= b95)))
 
 
 def _ellipse(ax, center, cov, level_chi2, i, j, **kw):
@@ -323,7 +310,7 @@ def write_report(out, analysis, *, rheometer=None) -> Path:
     for e, sim in zip(analysis.run.experiments, analysis.frames):
         s = f"{float(e.width_mm):g}x{float(e.height_mm):g}"
         overlays.append((s, overlays_png(out / f"overlay_{s}.png", sim, e.frames, f"setup {s} mm")))
-    coverage = band_coverage(summary, rheometer) if rheometer is not None else None
+    coverage = band_coverage(summary.flow_band, rheometer) if rheometer is not None else None
     if coverage is not None:
         summary.rheometer_band_coverage = coverage
     return write_html(out, summary, figures, overlays=overlays, rheometer=rheometer, coverage=coverage)
