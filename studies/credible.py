@@ -65,11 +65,12 @@ def coverage(levels_of_truth, nominal=LEVELS) -> np.ndarray:
 def tempering_weights(log_prob, k: float) -> np.ndarray:
     """Weights that make samples of the posterior p (``log_prob``: each sample's log p, up to a constant) samples
     of p^k / Z, the posterior with N_eff of eq. (1) times ``k`` under the uniform prior: p^(k-1), scaled so that
-    the densest sample weighs 1."""
+    the densest sample weighs 1; a sample where p = 0 weighs 0."""
     lp = np.asarray(log_prob, float)
-    if lp.size == 0 or not np.isfinite(lp).any():
+    ok = np.isfinite(lp)
+    if not ok.any():
         raise ValueError("need samples with a finite log-posterior")
-    return np.exp((float(k) - 1.0) * (lp - np.max(lp[np.isfinite(lp)])))
+    return np.where(ok, np.exp((float(k) - 1.0) * (np.where(ok, lp, 0.0) - np.max(lp[ok]))), 0.0)
 
 
 def tempered_level(log_prob, level: float, k: float) -> tuple[float, float]:

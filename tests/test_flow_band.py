@@ -48,3 +48,11 @@ def test_band_coverage_counts_the_rheometer_points_inside_between_1_and_100_per_
     assert band_coverage(band, curve) == pytest.approx(3 / 5)
     with pytest.raises(ValueError, match="no rheometer points"):
         band_coverage(band, curve, lo=2000.0, hi=3000.0)
+
+
+def test_tempering_weights_are_p_to_the_k_minus_1_and_zero_outside_the_support():
+    lp = np.array([-1.0, 0.0, -3.0, -np.inf])
+    assert np.allclose(tempering_weights(lp, 1.0), [1, 1, 1, 0])
+    assert np.allclose(tempering_weights(lp, 3.0), [np.exp(-2), 1, np.exp(-6), 0])
+    with pytest.raises(ValueError, match="finite"):
+        tempering_weights([-np.inf], 2.0)
