@@ -25,7 +25,7 @@ from bench_real_estimates import SLUGS, rheometer_curves  # noqa: E402  (bench/ 
 from measured import how_measured  # noqa: E402
 from similarity.flow_band import band_coverage, band_width, flow_band  # noqa: E402
 from similarity.space import denormalize  # noqa: E402
-from studies.credible import TEMPERING, tempering_weights  # noqa: E402
+from studies.credible import TEMPERING, kish_fraction, tempering_weights  # noqa: E402
 
 RATES = (1.0, 10.0, 100.0)  # 1/s, where the band's width is printed
 
@@ -51,8 +51,7 @@ def main(argv=None) -> int:
             w = tempering_weights(lp, k)
             band = flow_band(si, None if k == 1 else w)  # k = 1: the report's own band
             widths = " / ".join(f"{band_width(band, r):.2f}" for r in RATES)
-            ess = w.sum() ** 2 / np.sum(w * w) / w.size
-            print(f"| {name} | {k:g} | {widths} | {100 * band_coverage(band, curves[name]):.0f} % | {100 * ess:.0f} % |")
+            print(f"| {name} | {k:g} | {widths} | {100 * band_coverage(band, curves[name]):.0f} % | {100 * kish_fraction(w):.0f} % |")
     if not found:
         print(f"bench_tempered_bands: no reported posterior under {args.root} (run `virheo report` on its folders)",
               file=sys.stderr)

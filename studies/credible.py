@@ -85,7 +85,13 @@ def tempered_level(log_prob, level: float, k: float) -> tuple[float, float]:
     lp = np.sort(np.asarray(log_prob, float))[::-1]
     w = tempering_weights(lp, k)
     m = int(round(float(level) * lp.size))
-    return float(w[:m].sum() / w.sum()), float(w.sum() ** 2 / np.sum(w * w) / lp.size)
+    return float(w[:m].sum() / w.sum()), kish_fraction(w)
+
+
+def kish_fraction(weights) -> float:
+    """Kish's effective sample size of weighted samples, (sum w)^2 / sum w^2, as a fraction of the samples."""
+    w = np.asarray(weights, float)
+    return float(w.sum() ** 2 / np.sum(w * w) / w.size)
 
 
 def tempered_summary(per_case: list) -> dict | None:
