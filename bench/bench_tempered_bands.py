@@ -1,7 +1,7 @@
 """The real-footage flow-curve bands had N_eff of eq. (1) been k times the count, from the posteriors as run
 (docs/uncertainty.md).
 
-    python bench/bench_tempered_bands.py --root DIR [--k 1 2 3 4]
+    python bench/bench_tempered_bands.py --root DIR [--k 1 2 3 4 6 8]
 
 DIR holds the folders of ``python bench/bench_real_estimates.py --root DIR``, each after ``virheo report
 DIR/<slug> --rheometer CSV`` (its ``posterior_samples.npy`` and ``posterior_log_prob.npy``).  Counting k residuals
@@ -33,7 +33,7 @@ RATES = (1.0, 10.0, 100.0)  # 1/s, where the band's width is printed
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--root", type=Path, required=True, help="the root of bench_real_estimates.py's folders")
-    p.add_argument("--k", type=float, nargs="+", default=list(TEMPERING[:4]), help="N_eff multipliers")
+    p.add_argument("--k", type=float, nargs="+", default=list(TEMPERING), help="N_eff multipliers")
     args = p.parse_args(argv)
     curves = rheometer_curves()
     print(f"# measured: {how_measured()}")
