@@ -417,6 +417,9 @@ struct Engine {
 
     struct Block {
         alignas(64) float vp[D][W], B[D][D][W], mass[W];
+#if VIRHEO_VEC_BYTES == 64
+        alignas(64) float rows[4][W][4];  // gather_lane's row sums per lane: (v, m), grad along L, along 0, 1
+#endif
     };
 
     // ---------------------------------------------------------------------------------------------------
@@ -803,6 +806,12 @@ struct Engine {
             }
             VP = Wk * T1, BA[0] = Wk * T2, BL = DWk * T1;
         }
+#if VIRHEO_VEC_BYTES == 64
+        // the row sums as lane i's 4-float rows; gather_finish turns the block's rows into lanes
+        V4 rows[4] = {node_sum(VP), node_sum(BL), {}, {}};
+        for (int a = 0; a < L; a++) rows[2 + a] = node_sum(BA[a]);
+        for (int q = 0; q < 4; q++) __builtin_memcpy(blk.rows[q][i], &rows[q], sizeof(V4));
+#else
         V4 vp = node_sum(VP), bl = node_sum(BL) * inv_dx, ba[D - 1];
         for (int a = 0; a < L; a++) ba[a] = node_sum(BA[a]) * inv_dx;
         for (int r = 0; r < D; r++) {
@@ -811,6 +820,45 @@ struct Engine {
             blk.B[r][L][i] = bl[r];  // C_p = grad v
         }
         blk.mass[i] = vp[D];
+#endif
+    }
+
+    // after gather_lane of lanes 0..cnt-1: the lanes past the last particle at rest, and (AVX-512) the rows of
+    // 4 floats per lane transposed to 16-lane fields: component c of lanes 0..15 (two rounds of permutes)
+    void gather_finish(int cnt, Block& blk) {
+#if VIRHEO_VEC_BYTES == 64
+        for (int i = cnt; i < W; i++)
+            for (int q = 0; q < 4; q++)
+                for (int c = 0; c < 4; c++) blk.rows[q][i][c] = 0;
+        for (int q = 0; q < 2 + L; q++) {
+            V z[4];
+            for (int k = 0; k < 4; k++) z[k] = vload(blk.rows[q][4 * k]);
+            V lo01 = __builtin_shufflevector(z[0], z[1], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
+            V hi01 = __builtin_shufflevector(z[0], z[1], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
+            V lo23 = __builtin_shufflevector(z[2], z[3], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
+            V hi23 = __builtin_shufflevector(z[2], z[3], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
+            V comp[4] = {
+                __builtin_shufflevector(lo01, lo23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
+                __builtin_shufflevector(lo01, lo23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31),
+                __builtin_shufflevector(hi01, hi23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
+                __builtin_shufflevector(hi01, hi23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31)};
+            if (q == 0) {  // velocity and mass
+                for (int r = 0; r < D; r++) vstore(blk.vp[r], comp[r]);
+                vstore(blk.mass, comp[D]);
+            } else {  // C_p = grad v: column L from BL (q = 1), column a from BA[a] (q = 2 + a)
+                const int col = q == 1 ? L : q - 2;
+                for (int r = 0; r < D; r++) vstore(blk.B[r][col], comp[r] * inv_dx);
+            }
+        }
+#else
+        for (int i = cnt; i < W; i++) {  // lanes past the last particle: at rest
+            for (int r = 0; r < D; r++) {
+                blk.vp[r][i] = 0;
+                for (int c = 0; c < D; c++) blk.B[r][c][i] = 0;
+            }
+            blk.mass[i] = 0;
+        }
+#endif
     }
 
     // ---------------------------------------------------------------------------------------------------
@@ -837,13 +885,7 @@ struct Engine {
             if (cnt <= 0) break;
             block_weights(p, sb);
             for (int i = 0; i < cnt; i++) gather_lane(p, i, A, sb, blk);
-            for (int i = cnt; i < W; i++) {  // lanes past the last particle: at rest
-                for (int r = 0; r < D; r++) {
-                    blk.vp[r][i] = 0;
-                    for (int c = 0; c < D; c++) blk.B[r][c][i] = 0;
-                }
-                blk.mass[i] = 0;
-            }
+            gather_finish(cnt, blk);
             VI live = vloadi(IOTA_) < cnt;
             // elastic predictor b* = F b F^T, F = I + dt C (eq. 52)
             V F[3][3];
