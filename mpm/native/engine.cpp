@@ -18,7 +18,7 @@
 
 #if defined(__x86_64__) || defined(_M_X64)
 #define VIRHEO_X86 1
-#include <xmmintrin.h>
+#include <immintrin.h>
 #endif
 
 namespace virheo {

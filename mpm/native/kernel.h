@@ -322,6 +322,7 @@ static const float COMP_[4][W] = {{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 
                                   {0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0},
                                   {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0},
                                   {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}};
+static const float NODE_INDEX_[W] = {0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3};  // k on node k's lanes
 static const int IOTA_[W] = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15};
 #define NODE0 vload(NODE_[0])
 #define NODE1 vload(NODE_[1])
@@ -565,7 +566,32 @@ struct Engine {
     // 1. P2G: node (lead, k) receives w (m v + m C (x_i - x_p)) - dt V_p tau grad w and w m
     struct ScatterBlock {
         alignas(64) float fx[D][W], w[D][3][W], dw[D][3][W], u[D][W], mC[D][D][W], S[D][D][W];
+#if VIRHEO_VEC_BYTES == 64
+        // per lane, 4-float rows (a node's components): the weights w and dw along L (node k in place k), the
+        // momentum u with the mass, and the columns of m C and S (column L, then 0 .. L-1), component r in place r
+        alignas(64) float rows[4 + 2 * D][W][4];
+#endif
     };
+
+#if VIRHEO_VEC_BYTES == 64
+    // the transpose of gather_finish's: 4 fields of 16 lanes -> 16 rows of 4 floats (lane i's row at out[i])
+    VH_INLINE void lanes_to_rows(V c0, V c1, V c2, V c3, float (*out)[4]) {
+        V a01 = __builtin_shufflevector(c0, c1, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+        V b01 = __builtin_shufflevector(c0, c1, 8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
+        V a23 = __builtin_shufflevector(c2, c3, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
+        V b23 = __builtin_shufflevector(c2, c3, 8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
+        vstore(out[0], __builtin_shufflevector(a01, a23, 0, 1, 16, 17, 2, 3, 18, 19, 4, 5, 20, 21, 6, 7, 22, 23));
+        vstore(out[4], __builtin_shufflevector(a01, a23, 8, 9, 24, 25, 10, 11, 26, 27, 12, 13, 28, 29, 14, 15, 30, 31));
+        vstore(out[8], __builtin_shufflevector(b01, b23, 0, 1, 16, 17, 2, 3, 18, 19, 4, 5, 20, 21, 6, 7, 22, 23));
+        vstore(out[12], __builtin_shufflevector(b01, b23, 8, 9, 24, 25, 10, 11, 26, 27, 12, 13, 28, 29, 14, 15, 30, 31));
+    }
+    // a row of 4 floats as a stencil row: (r0 x4, r1 x4, r2 x4, r3 x4), and (r0, r1, r2, r3) on each of the 4 nodes
+    VH_INLINE V per_node(const float* r) {
+        return (V)_mm512_permutexvar_ps(_mm512_set_epi32(3, 3, 3, 3, 2, 2, 2, 2, 1, 1, 1, 1, 0, 0, 0, 0),
+                                        _mm512_castps128_ps512(_mm_loadu_ps(r)));
+    }
+    VH_INLINE V on_every_node(const float* r) { return (V)_mm512_broadcast_f32x4(_mm_loadu_ps(r)); }
+#endif
 
     // per-lane quantities of P2G for the block at p (positions x, bases, b_e, iso, v, C already stored)
     void scatter_prepare(int p, float dt, ScatterBlock& sb) {
@@ -588,6 +614,20 @@ struct Engine {
             }
             vstore(sb.u[r], u);
         }
+#if VIRHEO_VEC_BYTES == 64
+        const V zero{};
+        auto put = [&](int q, auto f) {  // row q of every lane from its components f(0) .. f(3)
+            lanes_to_rows(f(0), f(1), f(2), f(3), sb.rows[q]);
+        };
+        put(0, [&](int k) { return k < 3 ? vload(sb.w[L][k]) : zero; });
+        put(1, [&](int k) { return k < 3 ? vload(sb.dw[L][k]) : zero; });
+        put(2, [&](int r) { return r < D ? vload(sb.u[r]) : r == D ? splat(mp) : zero; });
+        for (int j = 0; j < D; j++) {  // column a = L, 0, .., L-1
+            const int a = j == 0 ? L : j - 1;
+            put(3 + 2 * j, [&](int r) { return r < D ? vload(sb.mC[r][a]) : zero; });
+            put(4 + 2 * j, [&](int r) { return r < D ? vload(sb.S[r][a]) : zero; });
+        }
+#endif
     }
 
     // scatter lane i of the block at p into copy t of grid g; false if its stencil leaves the window
@@ -600,11 +640,21 @@ struct Engine {
             node0 += (long)b * w.stride[a];
         }
         float* gr = &grid[g][((size_t)t * cap[g] + node0) * 4];
+        V A[D - 1], G[D - 1];
+#if VIRHEO_VEC_BYTES == 64
+        const float(*rows)[W][4] = sb.rows;
+        const V Wk = per_node(rows[0][i]), DWk = per_node(rows[1][i]), KWk = Wk * vload(NODE_INDEX_);
+        const V CU = on_every_node(rows[2][i]), Qb = on_every_node(rows[3][i]), Rb = on_every_node(rows[4][i]);
+        for (int a = 0; a < L; a++) {
+            A[a] = Wk * on_every_node(rows[5 + 2 * a][i]);
+            G[a] = Wk * on_every_node(rows[6 + 2 * a][i]);
+        }
+#else
         const float w0 = sb.w[L][0][i], w1 = sb.w[L][1][i], w2 = sb.w[L][2][i];
         V Wk = w0 * NODE0 + w1 * NODE1 + w2 * NODE2;
         V KWk = w1 * NODE1 + (2.0f * w2) * NODE2;
         V DWk = sb.dw[L][0][i] * NODE0 + sb.dw[L][1][i] * NODE1 + sb.dw[L][2][i] * NODE2;
-        V CU = P.mp * COMP(D), Qb{}, Rb{}, A[D - 1], G[D - 1];
+        V CU = P.mp * COMP(D), Qb{}, Rb{};
         for (int r = 0; r < D; r++) {
             CU += sb.u[r][i] * COMP(r);
             Qb += sb.mC[r][L][i] * COMP(r);
@@ -616,6 +666,7 @@ struct Engine {
             A[a] = Wk * ma;
             G[a] = Wk * sa;
         }
+#endif
         V U = Wk * CU + KWk * Qb + DWk * Rb;
         if constexpr (D == 3) {
             // the weights are a tensor product: row (a0, a1) = w1[a1] X[a0] + w0[a0] Z[a1]
