@@ -619,8 +619,6 @@ struct Engine {
         auto put = [&](int q, auto f) {  // row q of every lane from its components f(0) .. f(3)
             lanes_to_rows(f(0), f(1), f(2), f(3), sb.rows[q]);
         };
-        put(0, [&](int k) { return k < 3 ? vload(sb.w[L][k]) : zero; });
-        put(1, [&](int k) { return k < 3 ? vload(sb.dw[L][k]) : zero; });
         put(2, [&](int r) { return r < D ? vload(sb.u[r]) : r == D ? splat(mp) : zero; });
         for (int j = 0; j < D; j++) {  // column a = L, 0, .., L-1
             const int a = j == 0 ? L : j - 1;
@@ -822,6 +820,12 @@ struct Engine {
             Weights wt = ugimp(fx, P.lh);
             vstore(sb.fx[a], fx);
             for (int k = 0; k < 3; k++) vstore(sb.w[a][k], wt.w[k]), vstore(sb.dw[a][k], wt.dw[k]);
+#if VIRHEO_VEC_BYTES == 64
+            if (a == L) {  // the weights along L as rows 0 and 1 (node k in place k)
+                lanes_to_rows(wt.w[0], wt.w[1], wt.w[2], V{}, sb.rows[0]);
+                lanes_to_rows(wt.dw[0], wt.dw[1], wt.dw[2], V{}, sb.rows[1]);
+            }
+#endif
         }
     }
 
@@ -833,8 +837,12 @@ struct Engine {
         float wt[D][3], dw[D][3];
         for (int a = 0; a < D; a++)
             for (int k = 0; k < 3; k++) wt[a][k] = sb.w[a][k][i], dw[a][k] = sb.dw[a][k][i];
+#if VIRHEO_VEC_BYTES == 64
+        const V Wk = per_node(sb.rows[0][i]), DWk = per_node(sb.rows[1][i]);
+#else
         V Wk = wt[L][0] * NODE0 + wt[L][1] * NODE1 + wt[L][2] * NODE2;
         V DWk = dw[L][0] * NODE0 + dw[L][1] * NODE1 + dw[L][2] * NODE2;
+#endif
         // the weights are a tensor product: sum over the last leading axis first
         V VP, BL, BA[D - 1];
         if constexpr (D == 3) {
