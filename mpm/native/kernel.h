@@ -10,7 +10,8 @@
 // the dense window of mpm/stencil.py with 4 floats per node (momentum or velocity, then mass; 2D: one pad),
 // its last axis contiguous, so that one stencil row (3 nodes) is one 16-float vector (the 4th node gets + 0).
 // Per block of 16 particles the constitutive update runs across the lanes; the transfers run per particle
-// along stencil rows. A step is one fused pass per particle: G2P from grid A, constitutive update, advection,
+// along stencil rows (with AVX-512 their per-particle operands and results pass through 4-float rows per lane,
+// which permutes turn into 16-lane fields and back once per block). A step is one fused pass per particle: G2P from grid A, constitutive update, advection,
 // and P2G of the next step into grid B (the same time step), except at a time-step update.
 
 namespace VIRHEO_ISA {
@@ -580,7 +581,20 @@ struct Engine {
     };
 
 #if VIRHEO_VEC_BYTES == 64
-    // the transpose of gather_finish's: 4 fields of 16 lanes -> 16 rows of 4 floats (lane i's row at out[i])
+    // 16 rows of 4 floats (lane i's row at in[i]) -> 4 fields of 16 lanes (component c in comp[c])
+    VH_INLINE void rows_to_lanes(const float (*in)[4], V comp[4]) {
+        V z[4];
+        for (int k = 0; k < 4; k++) z[k] = vload(in[4 * k]);
+        V lo01 = __builtin_shufflevector(z[0], z[1], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
+        V hi01 = __builtin_shufflevector(z[0], z[1], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
+        V lo23 = __builtin_shufflevector(z[2], z[3], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
+        V hi23 = __builtin_shufflevector(z[2], z[3], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
+        comp[0] = __builtin_shufflevector(lo01, lo23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
+        comp[1] = __builtin_shufflevector(lo01, lo23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
+        comp[2] = __builtin_shufflevector(hi01, hi23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
+        comp[3] = __builtin_shufflevector(hi01, hi23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
+    }
+    // its inverse: 4 fields of 16 lanes -> 16 rows of 4 floats (lane i's row at out[i])
     VH_INLINE void lanes_to_rows(V c0, V c1, V c2, V c3, float (*out)[4]) {
         V a01 = __builtin_shufflevector(c0, c1, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
         V b01 = __builtin_shufflevector(c0, c1, 8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
@@ -889,24 +903,15 @@ struct Engine {
     }
 
     // after gather_lane of lanes 0..cnt-1: the lanes past the last particle at rest, and (AVX-512) the rows of
-    // 4 floats per lane transposed to 16-lane fields: component c of lanes 0..15 (two rounds of permutes)
+    // 4 floats per lane turned into 16-lane fields (rows_to_lanes)
     void gather_finish(int cnt, Block& blk) {
 #if VIRHEO_VEC_BYTES == 64
         for (int i = cnt; i < W; i++)
             for (int q = 0; q < 4; q++)
                 for (int c = 0; c < 4; c++) blk.rows[q][i][c] = 0;
         for (int q = 0; q < 2 + L; q++) {
-            V z[4];
-            for (int k = 0; k < 4; k++) z[k] = vload(blk.rows[q][4 * k]);
-            V lo01 = __builtin_shufflevector(z[0], z[1], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
-            V hi01 = __builtin_shufflevector(z[0], z[1], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
-            V lo23 = __builtin_shufflevector(z[2], z[3], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
-            V hi23 = __builtin_shufflevector(z[2], z[3], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
-            V comp[4] = {
-                __builtin_shufflevector(lo01, lo23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
-                __builtin_shufflevector(lo01, lo23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31),
-                __builtin_shufflevector(hi01, hi23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23),
-                __builtin_shufflevector(hi01, hi23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31)};
+            V comp[4];
+            rows_to_lanes(blk.rows[q], comp);
             if (q == 0) {  // velocity and mass
                 for (int r = 0; r < D; r++) vstore(blk.vp[r], comp[r]);
                 vstore(blk.mass, comp[D]);
