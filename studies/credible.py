@@ -70,7 +70,9 @@ def tempering_weights(log_prob, k: float) -> np.ndarray:
     ok = np.isfinite(lp)
     if not ok.any():
         raise ValueError("need samples with a finite log-posterior")
-    return np.where(ok, np.exp((float(k) - 1.0) * (np.where(ok, lp, 0.0) - np.max(lp[ok]))), 0.0)
+    w = np.zeros_like(lp)
+    w[ok] = np.exp((float(k) - 1.0) * (lp[ok] - lp[ok].max()))
+    return w
 
 
 def tempered_level(log_prob, level: float, k: float) -> tuple[float, float]:
