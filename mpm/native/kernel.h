@@ -144,16 +144,24 @@ VH_INLINE bool any(VI m) {
     for (int i = 0; i < W; i++) r |= m[i];
     return r != 0;
 }
+#if VIRHEO_VEC_BYTES == 64
+VH_INLINE V vfloor(V a) { return (V)_mm512_roundscale_ps((__m512)a, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC); }
+VH_INLINE VI vfloor_i(V a) { return to_int(vfloor(a)); }  // floor as int32, |a| < 2^31
+VH_INLINE V times_pow2(V y, V n) { return (V)_mm512_scalef_ps((__m512)y, (__m512)n); }  // y 2^n, n integral
+#else
 VH_INLINE VI vfloor_i(V a) {  // floor as int32, |a| < 2^31
     VI t = to_int(a);
     return t + (tofloat(t) > a);  // the mask is -1 where truncation rounded up
 }
+VH_INLINE V vfloor(V a) { return tofloat(vfloor_i(a)); }
+VH_INLINE V times_pow2(V y, V n) { return y * asf((to_int(n) + 127) << 23); }  // y 2^n, n integral in [-126, 127]
+#endif
 
 // exp and log in float32 (range reduction by powers of two, minimax polynomials on the reduced interval),
 // branch-free so that all lanes run them at once; relative error a few ulp.
 VH_INLINE V vexp(V x) {
     x = vmin(vmax(x, splat(-87.0f)), splat(88.0f));
-    V fx = tofloat(vfloor_i(x * 1.44269504088896341f + 0.5f));
+    V fx = vfloor(x * 1.44269504088896341f + 0.5f);
     V r = x - fx * 0.693359375f + fx * 2.12194440e-4f;  // x - n ln 2, ln 2 in two parts
     V p = splat(1.9875691500e-4f);
     p = p * r + 1.3981999507e-3f;
@@ -162,7 +170,7 @@ VH_INLINE V vexp(V x) {
     p = p * r + 1.6666665459e-1f;
     p = p * r + 5.0000001201e-1f;
     V y = p * r * r + r + 1.0f;
-    return y * asf((to_int(fx) + 127) << 23);  // times 2^n
+    return times_pow2(y, fx);
 }
 
 VH_INLINE V vlog(V x) {  // x > 0 and normal
