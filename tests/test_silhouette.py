@@ -2,10 +2,11 @@
 import numpy as np
 import pytest
 from scipy import ndimage
+from skimage.morphology import disk
 
 from mpm.camera import Camera
 from mpm.loss import iou
-from mpm.silhouette import (REFERENCE_RADIUS_M, REFERENCE_SPACING_M, _dilate, _sure_offsets, box_corners,
+from mpm.silhouette import (REFERENCE_RADIUS_M, REFERENCE_SPACING_M, _morph, _sure_offsets, box_corners,
                             box_mask, default_radius_m, render, render_frames)
 
 CAM = Camera.default()
@@ -42,15 +43,20 @@ def test_splats_cover_exactly_the_pixel_centres_inside_each_disk(radius):
     assert np.array_equal(got, expected)
 
 
-@pytest.mark.parametrize("density", [0.005, 0.02, 0.2])
-@pytest.mark.parametrize("r_min", [0.8, 3.2, 10.5])
-def test_dilation_is_scipys(r_min, density):
-    # sparse masks take the stamping path: the footprint at each set pixel, clipped at the image edges
-    rng = np.random.default_rng(int(r_min * 10))
+@pytest.mark.parametrize("density", [0.005, 0.02, 0.2, 0.6])
+@pytest.mark.parametrize("r_min", [0.8, 3.2, 10.5, 40.0])
+def test_morphology_by_rows_is_scipys(r_min, density):
+    # dilation, erosion (outside the image False) and closing by the 'sure' footprint and by a disk, computed by
+    # rows, pixel for pixel as scipy's; set pixels on the edges, and footprints wider than the image
+    rng = np.random.default_rng(int(r_min * 10 + density * 100))
     mask = rng.random((60, 90)) < density
     mask[0, 5] = mask[59, 89] = mask[30, 0] = True
-    sure = _sure_offsets(r_min)
-    assert np.array_equal(_dilate(mask, sure), ndimage.binary_dilation(mask, structure=sure))
+    for fp in (_sure_offsets(r_min), disk(int(r_min) // 2)):
+        dilated = _morph(mask, fp, erode=False)
+        assert np.array_equal(dilated, ndimage.binary_dilation(mask, structure=fp))
+        assert np.array_equal(_morph(mask, fp, erode=True), ndimage.binary_erosion(mask, structure=fp, border_value=0))
+        assert np.array_equal(_morph(dilated, fp, erode=True),
+                              ndimage.binary_closing(mask, structure=fp, border_value=0))
 
 
 def test_dense_cuboid_shortcut_is_exact():
