@@ -77,7 +77,7 @@ struct V {
 VH_ARITH(V, float, +) VH_ARITH(V, float, -) VH_ARITH(V, float, *) VH_ARITH(V, float, /)
 VH_CMP(V, float, <) VH_CMP(V, float, >) VH_CMP(V, float, <=) VH_CMP(V, float, >=) VH_CMP(V, float, ==)
 VH_CMP(V, float, !=)
-VH_ARITH(VI, int, +) VH_ARITH(VI, int, -) VH_ARITH(VI, int, &) VH_ARITH(VI, int, |)
+VH_ARITH(VI, int, +) VH_ARITH(VI, int, -) VH_ARITH(VI, int, *) VH_ARITH(VI, int, &) VH_ARITH(VI, int, |)
 VH_CMP(VI, int, <) VH_CMP(VI, int, >) VH_CMP(VI, int, ==) VH_CMP(VI, int, !=)
 VH_SCALAR(VI, int, VI, <<) VH_SCALAR(VI, int, VI, >>)
 #undef VH_BIN
@@ -567,6 +567,7 @@ struct Engine {
     // 1. P2G: node (lead, k) receives w (m v + m C (x_i - x_p)) - dt V_p tau grad w and w m
     struct ScatterBlock {
         alignas(64) float fx[D][W], w[D][3][W], dw[D][3][W], u[D][W], mC[D][D][W], S[D][D][W];
+        alignas(64) int node0[W];  // each lane's stencil node 0 in the window (block_nodes)
 #if VIRHEO_VEC_BYTES == 64
         // per lane, 4-float rows (a node's components): the weights w and dw along L (node k in place k), the
         // momentum u with the mass, and the columns of m C and S (column L, then 0 .. L-1), component r in place r
@@ -642,16 +643,11 @@ struct Engine {
 #endif
     }
 
-    // scatter lane i of the block at p into copy t of grid g; false if its stencil leaves the window
-    bool scatter_lane(int p, int i, const ScatterBlock& sb, int g, int t) {
+    // scatter lane i of the block into copy t of grid g
+    // (block_nodes has found the block's stencils inside the window)
+    void scatter_lane(int i, const ScatterBlock& sb, int g, int t) {
         const Window& w = win[g];
-        long node0 = 0;
-        for (int a = 0; a < D; a++) {
-            int b = base[a][p + i] - w.org[a];
-            if (b < 0 || b > w.n[a] - 3) return false;
-            node0 += (long)b * w.stride[a];
-        }
-        float* gr = &grid[g][((size_t)t * cap[g] + node0) * 4];
+        float* gr = &grid[g][((size_t)t * cap[g] + sb.node0[i]) * 4];
         V A[D - 1], G[D - 1];
 #if VIRHEO_VEC_BYTES == 64
         const float(*rows)[W][4] = sb.rows;
@@ -700,7 +696,6 @@ struct Engine {
                 vstore(q, vload(q) + row);
             }
         }
-        return true;
     }
 
     void p2g_pass(int g, float dt) {
@@ -709,7 +704,8 @@ struct Engine {
             for (int p = slice(t); p < slice(t + 1); p += W) {
                 scatter_prepare(p, dt, sb);
                 int cnt = N - p < W ? N - p : W;
-                for (int i = 0; i < cnt; i++) scatter_lane(p, i, sb, g, t);
+                block_nodes(p, cnt, g, sb);  // the window is the particles' exact box
+                for (int i = 0; i < cnt; i++) scatter_lane(i, sb, g, t);
             }
         });
     }
@@ -843,11 +839,22 @@ struct Engine {
         }
     }
 
+    // each lane's stencil node 0 in window g, for the block at p; true if a live lane's stencil leaves the window
+    bool block_nodes(int p, int cnt, int g, ScatterBlock& sb) {
+        const Window& w = win[g];
+        VI k{}, out{};
+        for (int a = 0; a < D; a++) {
+            VI b = vloadi(&base[a][p]) - w.org[a];
+            out |= (b < 0) | (b > w.n[a] - 3);
+            k += b * w.stride[a];
+        }
+        vstorei(sb.node0, k);
+        return any(out & (vloadi(IOTA_) < cnt));
+    }
+
     void gather_lane(int p, int i, int g, const ScatterBlock& sb, Block& blk) {
         const Window& w = win[g];
-        long node0 = 0;
-        for (int a = 0; a < D; a++) node0 += (long)(base[a][p + i] - w.org[a]) * w.stride[a];
-        const float* gr = &grid[g][node0 * 4];
+        const float* gr = &grid[g][(long)sb.node0[i] * 4];
         float wt[D][3], dw[D][3];
         for (int a = 0; a < D; a++)
             for (int k = 0; k < 3; k++) wt[a][k] = sb.w[a][k][i], dw[a][k] = sb.dw[a][k][i];
@@ -948,6 +955,7 @@ struct Engine {
             int cnt = N - p < W ? N - p : W;
             if (cnt <= 0) break;
             block_weights(p, sb);
+            block_nodes(p, cnt, A, sb);
             for (int i = 0; i < cnt; i++) gather_lane(p, i, A, sb, blk);
             gather_finish(cnt, blk);
             VI live = vloadi(IOTA_) < cnt;
@@ -1021,11 +1029,9 @@ struct Engine {
                 for (int c = 0; c < D; c++) vstore(&C[r * D + c][p], sel(frozen, V{}, Bm[r][c]));
             if (scatter && !miss) {
                 scatter_prepare(p, dt, sb);
-                for (int i = 0; i < cnt; i++)
-                    if (!scatter_lane(p, i, sb, Bg, t)) {
-                        miss = true;
-                        break;
-                    }
+                miss = block_nodes(p, cnt, Bg, sb);  // then P2G runs again on the exact window
+                if (!miss)
+                    for (int i = 0; i < cnt; i++) scatter_lane(i, sb, Bg, t);
             }
         }
         for (int a = 0; a < D; a++) {
