@@ -42,8 +42,8 @@ def commit() -> str:
 # operations execute (Zen 4 splits each into two 256-bit halves; Zen 5 has full-width units), which moves the
 # native engine's speed against Taichi's
 AMD_CORES = ((25, 0x00, 0x0F, "Zen 3"), (25, 0x10, 0x1F, "Zen 4"), (25, 0x20, 0x2F, "Zen 3"),
-             (25, 0x40, 0x4F, "Zen 3+"), (25, 0x50, 0x5F, "Zen 3"), (25, 0x60, 0x7F, "Zen 4"), (25, 0xA0, 0xAF, "Zen 4"),
-             (26, 0x00, 0xFF, "Zen 5"))
+             (25, 0x40, 0x4F, "Zen 3+"), (25, 0x50, 0x5F, "Zen 3"), (25, 0x60, 0x7F, "Zen 4"),
+             (25, 0xA0, 0xAF, "Zen 4"), (26, 0x00, 0xFF, "Zen 5"))
 
 
 def cpu_model() -> str:
@@ -65,7 +65,8 @@ def cpu_model() -> str:
         return name
     core = next((c for f, lo, hi, c in AMD_CORES if fields.get("vendor_id") == "AuthenticAMD" and f == family
                  and lo <= model <= hi), None)
-    return f"{name} [family {family} model {model} stepping {fields.get('stepping', '?')}" + (f": {core}]" if core else "]")
+    ident = f"family {family} model {model} stepping {fields.get('stepping', '?')}"
+    return f"{name} [{ident}: {core}]" if core else f"{name} [{ident}]"
 
 
 def native_build() -> str:

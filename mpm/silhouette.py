@@ -71,6 +71,8 @@ def _row_halfwidths(footprint: np.ndarray) -> np.ndarray:
             a[r] = n // 2
             if n % 2 == 0 or not row[c - a[r]:c + a[r] + 1].all():
                 raise ValueError("footprint rows must be runs centred on the middle column")
+    if (a < 0).all():
+        raise ValueError("empty footprint")
     return a
 
 

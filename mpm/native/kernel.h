@@ -990,7 +990,7 @@ struct Engine {
             V z = D == 3 ? xp[D - 1] : splat(P.zmid);
             VI f = vloadi(&flags[p]);
             VI hidden = (f & HIDDEN) != 0, frozen{};
-            for (int b = 0; b < 4; b++) {  // vector compares: cheaper than the block's extent (6 lane reductions)
+            for (int b = 0; b < 4; b++) {  // each box tested on all 16 lanes
                 const float(*bx)[3] = P.boxes[b];
                 VI in_xy = (bx[0][0] <= xp[0]) & (xp[0] <= bx[1][0]) & (bx[0][1] <= xp[1]) & (xp[1] <= bx[1][1]);
                 VI in_z = (bx[0][2] <= z) & (z <= bx[1][2]);
