@@ -852,7 +852,7 @@ struct Engine {
         return any(out & (vloadi(IOTA_) < cnt));
     }
 
-    void gather_lane(int p, int i, int g, const ScatterBlock& sb, Block& blk) {
+    void gather_lane(int i, int g, const ScatterBlock& sb, Block& blk) {
         const Window& w = win[g];
         const float* gr = &grid[g][(long)sb.node0[i] * 4];
         float wt[D][3], dw[D][3];
@@ -956,7 +956,7 @@ struct Engine {
             if (cnt <= 0) break;
             block_weights(p, sb);
             block_nodes(p, cnt, A, sb);
-            for (int i = 0; i < cnt; i++) gather_lane(p, i, A, sb, blk);
+            for (int i = 0; i < cnt; i++) gather_lane(i, A, sb, blk);
             gather_finish(cnt, blk);
             VI live = vloadi(IOTA_) < cnt;
             // elastic predictor b* = F b F^T, F = I + dt C (eq. 52)
