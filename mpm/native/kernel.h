@@ -163,13 +163,12 @@ VH_INLINE V vexp(V x) {
     x = vmin(vmax(x, splat(-87.0f)), splat(88.0f));
     V fx = vfloor(x * 1.44269504088896341f + 0.5f);
     V r = x - fx * 0.693359375f + fx * 2.12194440e-4f;  // x - n ln 2, ln 2 in two parts
-    V p = splat(1.9875691500e-4f);
-    p = p * r + 1.3981999507e-3f;
-    p = p * r + 8.3334519073e-3f;
-    p = p * r + 4.1665795894e-2f;
-    p = p * r + 1.6666665459e-1f;
-    p = p * r + 5.0000001201e-1f;
-    V y = p * r * r + r + 1.0f;
+    // 1 + r + r^2 (c0 + c1 r + .. + c5 r^5), the polynomial by Estrin's scheme (short dependency chains)
+    V r2 = r * r, r4 = r2 * r2;
+    V q01 = 5.0000001201e-1f + 1.6666665459e-1f * r, q23 = 4.1665795894e-2f + 8.3334519073e-3f * r;
+    V q45 = 1.3981999507e-3f + 1.9875691500e-4f * r;
+    V p = (q01 + r2 * q23) + r4 * q45;
+    V y = p * r2 + (r + 1.0f);
     return times_pow2(y, fx);
 }
 
@@ -180,32 +179,27 @@ VH_INLINE V vlog(V x) {  // x > 0 and normal
     VI small = m < 0.707106781186547524f;
     e = e + small;  // the mask is -1: one binade down
     m = sel(small, m + m, m) - 1.0f;
-    V z = m * m;
-    V p = splat(7.0376836292e-2f);
-    p = p * m - 1.1514610310e-1f;
-    p = p * m + 1.1676998740e-1f;
-    p = p * m - 1.2420140846e-1f;
-    p = p * m + 1.4249322787e-1f;
-    p = p * m - 1.6668057665e-1f;
-    p = p * m + 2.0000714765e-1f;
-    p = p * m - 2.4999993993e-1f;
-    p = p * m + 3.3333331174e-1f;
+    V z = m * m, z2 = z * z, z4 = z2 * z2;
+    // c0 + c1 m + .. + c8 m^8 by Estrin's scheme
+    V q01 = 3.3333331174e-1f - 2.4999993993e-1f * m, q23 = 2.0000714765e-1f - 1.6668057665e-1f * m;
+    V q45 = 1.4249322787e-1f - 1.2420140846e-1f * m, q67 = 1.1676998740e-1f - 1.1514610310e-1f * m;
+    V p = ((q01 + z * q23) + z2 * (q45 + z * q67)) + z4 * 7.0376836292e-2f;
     V fe = tofloat(e);
-    V y = p * m * z - fe * 2.12194440e-4f - 0.5f * z;
+    V y = p * (m * z) - fe * 2.12194440e-4f - 0.5f * z;
     return m + y + fe * 0.693359375f;
 }
 
-// x^(1/3) for x > 0: a guess from the float's bits (exponent / 3), then two Halley steps
-// y <- y (y^3 + 2x) / (2y^3 + x) (cubic convergence: 10 % -> 1e-4 -> 1e-12).
-VH_INLINE V vcbrt(V x) {
-    V y = asf(to_int(tofloat(asi(x)) * (1.0f / 3.0f)) + 709921077);
+// x^(-1/3) for x > 0 and normal, without a division: a guess from the float's bits (exponent / -3, 4 %), then
+// two steps y <- y (1 + h/3 + 2h^2/9), h = 1 - x y^3 (the series of (1 - h)^(-1/3): cubic, 4 % -> 3e-4 -> 1 ulp)
+VH_INLINE V vrcbrt(V x) {
+    V y = asf(to_int(tofloat(asi(x)) * (-1.0f / 3.0f)) + 1419967116);
     for (int it = 0; it < 2; it++) {
-        V y3 = y * y * y;
-        y = y * (y3 + 2.0f * x) / (2.0f * y3 + x);
+        V h = 1.0f - (x * y) * (y * y);
+        y = y + (y * h) * (1.0f / 3.0f + (2.0f / 9.0f) * h);
     }
     return y;
 }
-VH_INLINE V iso_factor(V det) { return vcbrt(1.0f / det); }  // det(b_e)^(-1/3)
+VH_INLINE V iso_factor(V det) { return vrcbrt(det); }  // det(b_e)^(-1/3)
 
 // symmetric 3x3 as (xx, yy, zz, xy, xz, yz)
 struct Sym { V a[6]; };
@@ -267,10 +261,10 @@ VH_INLINE Mapped return_mapping(const Sym& b_trial, const Sym& b_old, V iso_old,
                                 float no_warm_start) {
     Mapped out;
     V det = sym_det(b_trial);
-    V J = vsqrt(det);
+    V J = vsqrt(det), inv_det = 1.0f / det;
     out.iso = iso_factor(det);
-    Sym d = sym_dev(sym_scale(b_trial, out.iso));
-    V x_trial = mu / J * sym_norm(d);  // eq. 13
+    Sym d = sym_dev(b_trial);  // dev(bbar) = iso dev(b): the cube root and the norm run side by side
+    V x_trial = mu / J * out.iso * sym_norm(d);  // eq. 13
     V e_trial = rule.alpha * x_trial - rule.beta * sy;  // eq. 15
     out.plastic = (e_trial > 0.0f) & live;
     out.be = b_trial;
@@ -283,6 +277,7 @@ VH_INLINE Mapped return_mapping(const Sym& b_trial, const Sym& b_old, V iso_old,
     V log_a = vlog(a) - __builtin_logf(eta) / n;
     float p = 1.0f / n;
     V s = vmin(log_e0, log_t);
+    V scale = out.iso / (rule.alpha * x_trial);  // computed while the solve runs
     VI active = out.plastic;
     for (int it = 0; it < iterations; it++) {
         // G(s) = log(e^s + e^v) - log_t, v = log_a + p s; d = v - s, r = e^-|d|
@@ -295,13 +290,12 @@ VH_INLINE Mapped return_mapping(const Sym& b_trial, const Sym& b_old, V iso_old,
         active = active & (vabs(step) >= newton_tol);
         if (!any(active)) break;
     }
-    V x = (vexp(s) + rule.beta * sy) / rule.alpha;
-    V ratio = x / x_trial;
+    V ratio = (vexp(s) + rule.beta * sy) * scale;  // iso x / x_trial, x = (e + beta sigma_y) / alpha (iso d = dev bbar)
     Sym bn;
     V t3 = T * (1.0f / 3.0f);
     for (int i = 0; i < 6; i++) bn.a[i] = ratio * d.a[i];
     for (int i = 0; i < 3; i++) bn.a[i] += t3;  // eq. 56
-    Sym res = sym_scale(bn, vcbrt(det / sym_det(bn)));  // isochoric: det kept
+    Sym res = sym_scale(bn, vrcbrt(sym_det(bn) * inv_det));  // isochoric: det kept
     out.be = sym_select(out.plastic, res, b_trial);
     out.log_e = sel(out.plastic, s, out.log_e);
     return out;
@@ -979,7 +973,7 @@ struct Engine {
                 V js = detF / crowd;
                 V det_trial = sym_det(b_trial);
                 VI lower = (crowd > 1.0f) & (js * js < det_trial);
-                if (any(lower)) b_trial = sym_scale(b_trial, sel(lower, vcbrt(js * js / det_trial), splat(1.0f)));
+                if (any(lower)) b_trial = sym_scale(b_trial, sel(lower, vrcbrt(det_trial / (js * js)), splat(1.0f)));
             }
             // eq. 57, identity when elastic; the Newton solve starts from the particle's last log(e)
             Mapped mp = return_mapping(b_trial, b_old, iso_old, P.mu, P.eta, P.n, P.sy, dt, loge_old, rule, live,
