@@ -261,7 +261,7 @@ VH_INLINE Mapped return_mapping(const Sym& b_trial, const Sym& b_old, V iso_old,
                                 float no_warm_start) {
     Mapped out;
     V det = sym_det(b_trial);
-    V J = vsqrt(det), inv_det = 1.0f / det;
+    V J = vsqrt(det);
     out.iso = iso_factor(det);
     Sym d = sym_dev(b_trial);  // dev(bbar) = iso dev(b): the cube root and the norm run side by side
     V x_trial = mu / J * out.iso * sym_norm(d);  // eq. 13
@@ -277,7 +277,7 @@ VH_INLINE Mapped return_mapping(const Sym& b_trial, const Sym& b_old, V iso_old,
     V log_a = vlog(a) - __builtin_logf(eta) / n;
     float p = 1.0f / n;
     V s = vmin(log_e0, log_t);
-    V scale = out.iso / (rule.alpha * x_trial);  // computed while the solve runs
+    V scale = out.iso / (rule.alpha * x_trial), inv_det = 1.0f / det;  // computed while the solve runs
     VI active = out.plastic;
     for (int it = 0; it < iterations; it++) {
         // G(s) = log(e^s + e^v) - log_t, v = log_a + p s; d = v - s, r = e^-|d|
