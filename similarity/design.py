@@ -27,6 +27,12 @@ model: the 16 setups of :func:`similarity.information.grid_setups` are scored by
 Hessians at the current estimate (sequential D-optimal design, :func:`similarity.information.predicted_gains`),
 19 simulations per setup.  It sees how much a setup pins down as well as which direction, which the Theta-based
 criteria do not (docs/uncertainty.md, "Does the design pay off?").
+
+A setup done in which Theta's plane-Poiseuille setup does not flow at the material (P L <= sigma_y: a thin box and
+a yield stress) has no loss normal and no Hessian.  The Theta-based criteria leave it out, with a line in
+``Ranking.notes``; when no setup done is left, perpendicularity has nothing to be perpendicular to and raises
+ValueError, while ``eig`` ranks from the prior.  Candidates with no flow, or a non-finite normal or gain, are not
+valid.  Every failure is a one-line ValueError.
 """
 from __future__ import annotations
 
@@ -40,7 +46,7 @@ from surrogate.theta import ThetaMap, load
 from poiseuille import hessian
 
 from .belief import PRIOR_PRECISION
-from .normals import loss_normal, loss_normals, perpendicularity
+from .normals import loss_normals, perpendicularity, top_eigenvector
 from .space import EXTENT, candidate_setups
 
 CRITERIA = ("perpendicularity", "eig")  # Theta-based, no simulation; "information": rank_by_simulation
@@ -62,6 +68,7 @@ class Ranking:
     criterion: str = "perpendicularity"  # "eig": expected information gain in nats; "information": log det gain
     information: np.ndarray | None = None  # "eig": Fisher information F_s (k, 3, 3) per candidate
     covariance: np.ndarray | None = None  # "eig": the current posterior covariance Sigma
+    notes: tuple = ()  # one line per setup done that was left out (no normal at this material), or a fallback taken
 
     def __len__(self) -> int:
         return len(self.score)
@@ -103,15 +110,34 @@ def _setups(done) -> tuple:
     return tuple(out)
 
 
-def unit_hessians(material, width_mm, height_mm, theta) -> tuple[np.ndarray, np.ndarray]:
-    """H^ = A H A / tr(A H A) (k, 3, 3) of the plane-Poiseuille loss for setups, and their validity (P L > sigma_y)."""
+def no_flow_note(setup) -> str:
+    """The line that says why a setup done is left out of a Theta-based criterion."""
+    return f"no plane-Poiseuille flow in {setup} at this estimate: its normal is undefined"
+
+
+def done_normals(material, done, theta, variant: str = "scaled") -> tuple[np.ndarray, tuple]:
+    """(loss normals (m, 3) of the setups done that have one, a :func:`no_flow_note` per setup left out)."""
+    q, valid = loss_normals(material, np.array([s.width_mm for s in done]), np.array([s.height_mm for s in done]),
+                            theta, variant)
+    valid &= np.all(np.isfinite(q), axis=-1)
+    return q[valid], tuple(no_flow_note(s) for s, ok in zip(done, valid) if not ok)
+
+
+def _no_candidate(material) -> ValueError:
+    return ValueError(f"no candidate setup makes {material} flow in Theta's plane-Poiseuille model")
+
+
+def unit_hessians(material, width_mm, height_mm, theta, *, with_normals: bool = False):
+    """H^ = A H A / tr(A H A) (k, 3, 3) of the plane-Poiseuille loss for setups, and their validity (P L > sigma_y);
+    ``with_normals``: also the loss normals (k, 3), the top eigenvectors of the same A H A (``variant="scaled"``)."""
     m = _material(material).as_array()
     P, L = theta.pl(m[0], m[1], m[2], np.asarray(width_mm, float), np.asarray(height_mm, float))
     valid = P * L > m[2]
     h = hessian(m[0], m[1], m[2], P, L) * EXTENT[:, None] * EXTENT[None, :]  # A H A, eqs. 29-42
     tr = np.trace(h, axis1=-2, axis2=-1)
     valid &= tr > 0
-    return h / np.where(valid, tr, 1.0)[..., None, None], valid
+    unit = h / np.where(valid, tr, 1.0)[..., None, None]
+    return (unit, valid, top_eigenvector(h)) if with_normals else (unit, valid)
 
 
 def expected_information_gain(covariance, fisher) -> np.ndarray:
@@ -137,9 +163,8 @@ def _rank_eig(material, done, theta, covariance, scale) -> Ranking:
     wd = np.array([s.width_mm for s in done])
     hd = np.array([s.height_mm for s in done])
     h_done, ok_done = unit_hessians(material, wd, hd, theta)
-    if not np.all(ok_done):
-        bad = done[int(np.flatnonzero(~ok_done)[0])]
-        raise ValueError(f"setup {bad} gives no plane-Poiseuille flow for this material, so its information is undefined")
+    notes = [no_flow_note(s) for s, ok in zip(done, ok_done) if not ok]
+    h_done = h_done[ok_done]  # a setup without flow adds no plane-Poiseuille information: left out
     if covariance is None:
         c = float(scale) if scale is not None else DEFAULT_INFORMATION_SCALE
         covariance = np.linalg.inv(PRIOR_PRECISION * np.eye(3) + c * h_done.sum(axis=0))
@@ -147,16 +172,26 @@ def _rank_eig(material, done, theta, covariance, scale) -> Ranking:
         covariance = np.asarray(covariance, float)
         if covariance.shape != (3, 3) or not np.all(np.isfinite(covariance)):
             raise ValueError("covariance must be a finite 3 x 3 matrix (normalised material space)")
-        c = float(scale) if scale is not None else information_scale(covariance, h_done)
+        c = float(scale) if scale is not None else None
+        if c is None and len(h_done):
+            try:
+                c = information_scale(covariance, h_done)
+            except ValueError as exc:
+                notes.append(f"{str(exc).splitlines()[0]}: the default scale {DEFAULT_INFORMATION_SCALE:g} is used")
+        elif c is None:
+            notes.append(f"no setup done has plane-Poiseuille flow to fit the information scale to: the default "
+                         f"scale {DEFAULT_INFORMATION_SCALE:g} is used")
+        c = DEFAULT_INFORMATION_SCALE if c is None else c
     width, height = candidate_setups()
-    h, valid = unit_hessians(material, width, height, theta)
+    h, valid, q = unit_hessians(material, width, height, theta, with_normals=True)
+    eig = np.full(len(width), np.nan)
+    eig[valid] = expected_information_gain(covariance, c * h[valid])
+    valid &= np.isfinite(eig) & np.all(np.isfinite(q), axis=-1)
     if not np.any(valid):
-        raise ValueError(f"no candidate setup makes {material} flow in Theta's plane-Poiseuille model")
-    fisher = c * h[valid]
-    eig = expected_information_gain(covariance, fisher)
-    q_done = np.array([loss_normal(material, s, theta) for s in done])
-    q, _ = loss_normals(material, width[valid], height[valid], theta)
-    return Ranking(material, done, width[valid], height[valid], eig, q, q_done, "eig", fisher, covariance)
+        raise _no_candidate(material)
+    q_done, _ = done_normals(material, done, theta)
+    return Ranking(material, done, width[valid], height[valid], eig[valid], q[valid], q_done, "eig", c * h[valid],
+                   covariance, tuple(notes))
 
 
 def rank_setups(material, done, theta="reference", variant: str = "scaled", criterion: str = "perpendicularity",
@@ -175,13 +210,16 @@ def rank_setups(material, done, theta="reference", variant: str = "scaled", crit
     material = _material(material)
     done = _setups(done)
     theta = theta if isinstance(theta, ThetaMap) else load(theta)
-    q_done = np.array([loss_normal(material, s, theta, variant) for s in done])
+    q_done, notes = done_normals(material, done, theta, variant)
+    if not len(q_done):
+        raise ValueError(f"{'; '.join(notes)}, so perpendicularity (section 6) has nothing to be perpendicular to")
     width, height = candidate_setups()
     q, valid = loss_normals(material, width, height, theta, variant)
+    valid &= np.all(np.isfinite(q), axis=-1)
     if not np.any(valid):
-        raise ValueError(f"no candidate setup makes {material} flow in Theta's plane-Poiseuille model")
+        raise _no_candidate(material)
     q = q[valid]
-    return Ranking(material, done, width[valid], height[valid], perpendicularity(q_done, q), q, q_done)
+    return Ranking(material, done, width[valid], height[valid], perpendicularity(q_done, q), q, q_done, notes=notes)
 
 
 def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_step: float | None = None, tick=None) -> Ranking:

@@ -9,6 +9,7 @@ run resumes where it stopped.
 from __future__ import annotations
 
 import inspect
+import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,9 +20,11 @@ from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
 from similarity.cma_stage import WARM_START_SPACING, Generation, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
 from similarity.presets import PRESETS, Preset, get_preset, setup_of  # noqa: F401
+from similarity.proposers import Perpendicularity
 from similarity.space import LOWER, UPPER, center, denormalize, e_rel, normalize
 
 BOUND_MARGIN = 0.02  # an estimate this close to a bound (fraction of the parameter's range) gets a warning
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -38,6 +41,7 @@ class Estimate:
     setups: list[str]
     model: ForwardModel  # the forward model at which ``loss`` was computed (the last stage's)
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # one line per optional step skipped (a next-setup proposal)
 
     def to_dict(self) -> dict:
         return {
@@ -45,6 +49,7 @@ class Estimate:
             "loss": self.loss,
             "model": self.model.to_dict(),
             "warnings": list(self.warnings),
+            "notes": list(self.notes),
             "setups": self.setups,
             "next_setup": None if self.next_setup is None else str(self.next_setup),
             "evaluations": self.evaluations,
@@ -74,10 +79,20 @@ def bound_warnings(material: Material, margin: float = BOUND_MARGIN) -> list[str
 
 
 def propose_next_setup(material: Material, done: Sequence[Setup]) -> Setup | None:
-    """Section 6: the setup whose loss normal is most perpendicular to those of ``done``."""
-    from similarity.design import next_setup
+    """Section 6: the setup whose loss normal is most perpendicular to those of ``done``; None, with a logged
+    warning saying why, where there is none (no setup done has plane-Poiseuille flow at ``material``, or no
+    candidate does).  Setups done without flow are left out of the score."""
+    try:
+        return Perpendicularity()(material, done)
+    except ValueError as exc:
+        log.warning("next-setup proposal skipped: %s", str(exc).splitlines()[0])
+        return None
 
-    return next_setup(material, list(done))
+
+def skipped_proposal(stage_index: int, exc: BaseException) -> str:
+    """The one line an estimate keeps when the proposal after a stage failed."""
+    why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return f"next-setup proposal after stage {stage_index} skipped: {why}"
 
 
 def _takes_stage(propose) -> bool:
@@ -100,16 +115,20 @@ def _forward(forward: Forward | None) -> tuple[Forward, bool]:
 def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward | None = None,
              generations: int | None = None, progress: Callable[[dict], None] | None = None,
              n_setups: int | None = None, acquire: Callable[[Setup], object] | None = None,
-             propose: Callable[[Material, list], Setup | None] | None = propose_next_setup) -> Estimate:
+             propose: Callable[[Material, list], Setup | None] | None = Perpendicularity(),
+             start: Material | None = None) -> Estimate:
     """Algorithm 1 on ``experiments`` (:class:`mpm.experiment.Experiment`), in order.
 
     Stage k fits the first k experiments.  After every stage the next setup is proposed with
-    ``propose(material, done)`` (default :func:`similarity.design.next_setup`; None: no proposal; a
-    proposer that takes a keyword ``stage`` also gets the finished :class:`Stage`); with ``acquire``
+    ``propose(material, done)`` (default section 6's perpendicularity, :class:`similarity.proposers.Perpendicularity`;
+    None: no proposal; a proposer that takes a keyword ``stage`` also gets the finished :class:`Stage`).  The
+    proposal is optional: when it raises, the stage keeps no next setup, the estimate goes on and
+    ``Estimate.notes`` says why (:func:`skipped_proposal`).  With ``acquire``
     (a callable Setup -> experiment, e.g. an emulator) the proposed setup is filmed and added until
     ``n_setups`` are done.  ``generations`` overrides the preset's per-stage count (not the finishing
     stage's).  ``forward``: the store and executor that simulate (default: the store under ~/.cache, one
-    worker process per CPU core).  Returns the best evaluated candidate of the last stage.
+    worker process per CPU core).  ``start``: stage 1's CMA-ES mean (default: the centre of the material space),
+    e.g. a rheometer's fit or an earlier estimate.  Returns the best evaluated candidate of the last stage.
     """
     experiments = list(experiments)
     if not experiments:
@@ -123,17 +142,22 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
     common = dict(forward=forward, progress=progress)
     t0 = time.perf_counter()
     stages: list[Stage] = []
-    x0 = normalize(center().as_array())
+    notes: list[str] = []
+    x0 = normalize((center() if start is None else Material.of(start).check_in_space()).as_array())
 
     def finish_stage(stage: Stage, done: list[Setup]) -> None:
-        if propose is None:
-            nxt = None
-        elif _takes_stage(propose):
-            nxt = propose(stage.material, done, stage=stage)
-        else:
-            nxt = propose(stage.material, done)
-        stage.next_setup = None if nxt is None else str(Setup(nxt.width_mm, nxt.height_mm))
         stages.append(stage)
+        try:
+            if propose is None:
+                nxt = None
+            elif _takes_stage(propose):
+                nxt = propose(stage.material, done, stage=stage)
+            else:
+                nxt = propose(stage.material, done)
+        except Exception as exc:  # an optional step: the estimate goes on without it
+            notes.append(skipped_proposal(len(stages), exc))
+            nxt = None
+        stage.next_setup = None if nxt is None else str(Setup(nxt.width_mm, nxt.height_mm))
 
     try:
         k = 0
@@ -171,13 +195,14 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
         wall_seconds=time.perf_counter() - t0,
         next_setup=None if last.next_setup is None else Setup.parse(last.next_setup),
         preset=preset.name, seed=int(seed), setups=last.setups, model=last.model, warnings=bound_warnings(last.material),
+        notes=notes,
     )
 
 
 def emulate_virheometry(truth: Material, first_setup: Setup, *, n_setups: int = 2, preset="demo", seed: int = 0,
                         density: float = DEFAULT_DENSITY_KG_M3, camera=None, forward: Forward | None = None,
                         generations: int | None = None, progress=None,
-                        propose: Callable | None = propose_next_setup) -> tuple[Estimate, list]:
+                        propose: Callable | None = Perpendicularity()) -> tuple[Estimate, list]:
     """Sequential ViRheometry on emulated footage: film ``first_setup``, fit, film the proposed setup, fit again.
 
     Returns the estimate and the emulated experiments (:class:`mpm.experiment.Experiment`, in filming order).

@@ -38,6 +38,8 @@ if the estimate were the truth, so it sees the size of a setup's information as 
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from similarity.belief import psd_projection
@@ -151,11 +153,13 @@ def setup_hessians(losses, step: float = STEP) -> list:
     return [setup_hessian(row, step) if np.all(np.isfinite(row)) else None for row in np.asarray(losses, float)]
 
 
-def realised_gains(h_done, hessians, measure: str = "gain") -> np.ndarray:
-    """The gain by ``measure`` (:data:`MEASURES`) of each candidate Hessian after ``h_done``; NaN where None."""
+def realised_gains(h_done, hessians, measure: str = "gain", eps: float | None = None) -> np.ndarray:
+    """The gain by ``measure`` (:data:`MEASURES`) of each candidate Hessian after ``h_done``; NaN where None.
+    ``eps``: the ridge of the log det measures (None: :func:`ridge` of ``h_done``)."""
     ok = np.array([h is not None for h in hessians])
     stack = np.array([h if h is not None else np.eye(3) for h in hessians], float).reshape(-1, 3, 3)
-    return np.where(ok, MEASURES[measure](np.asarray(h_done, float), stack), np.nan)
+    ridge_arg = {} if eps is None else {"eps": eps}
+    return np.where(ok, MEASURES[measure](np.asarray(h_done, float), stack, **ridge_arg), np.nan)
 
 
 def grid_setups(values_mm=GRID_MM) -> list:
@@ -175,8 +179,11 @@ def eig_nats(log_det_gain):
 def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float = STEP, tick=None) -> np.ndarray:
     """The log det gain (:func:`log_det_gain`) of each of ``setups`` after the setups ``done``, from the FD
     Hessians at ``estimate`` on footage emulated there (module docstring): 19 simulations per setup, done ones
-    included.  NaN for a setup whose simulations failed; ValueError when a done setup's did, or when the setups
-    done carry no information at the estimate."""
+    included.  NaN for a setup whose simulations failed; ValueError when a done setup's did.  When nothing moves
+    measurably around the estimate in the setups done (their Hessians have no positive eigenvalue: a stiff material
+    in a small box), the ridge comes from the candidates instead (RIDGE x their largest eigenvalue), so that each
+    candidate is scored by what it pins down on its own, with a warning; ValueError when no setup carries
+    information."""
     from mpm.params import Material
     from similarity.space import denormalize, normalize
 
@@ -191,4 +198,14 @@ def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float =
     if any(h is None for h in hessians[:len(done)]):
         raise ValueError(f"a simulation of a done setup's stencil around {estimate} failed, so its information is "
                          "unknown")
-    return realised_gains(np.sum(hessians[:len(done)], axis=0), hessians[len(done):])
+    h_done, candidates = np.sum(hessians[:len(done)], axis=0), hessians[len(done):]
+    eps = None
+    if not np.linalg.eigvalsh(h_done)[-1] > 0:
+        tops = [float(np.linalg.eigvalsh(h)[-1]) for h in candidates if h is not None]
+        if not tops or not max(tops) > 0:
+            raise ValueError(f"the loss does not change around {estimate} in any setup, done or candidate: no setup "
+                             "adds information at this estimate")
+        eps = RIDGE * max(tops)
+        warnings.warn(f"the setups done carry no information at {estimate} (their loss does not change around it): "
+                      "each candidate is scored by what it pins down on its own")
+    return realised_gains(h_done, candidates, eps=eps)

@@ -238,7 +238,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     ``posterior.json``, ``posterior_samples.npy``, the resumable ``posterior.h5`` and the checks' draws
     ``posterior_draws.npy`` into the folder.
     ``forward``: the store and executor that simulate (default: the run's store, in this process)."""
-    from similarity.design import SIMULATION_PRESET, expected_information_gain, rank_by_simulation, rank_setups
+    from similarity.design import SIMULATION_PRESET, rank_by_simulation, rank_setups
     from similarity.ellipsoid import alignment, ellipsoid
     from similarity.fd_hessian import fd_hessian
     from similarity.information import eig_nats
@@ -329,20 +329,23 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     # flow-curve band
     band = flow_band(post.si())
     # next setups by expected information gain (and by perpendicularity, for comparison)
-    eig_grid = None
+    eig_grid, eig = None, None
     try:
         eig = rank_setups(m_mean, run.setups, criterion="eig", covariance=post.cov)
         order = np.argsort(-eig.score)[:10]
         eig_grid = eig.grid().tolist()
         next_eig = [{"setup": f"{eig.width_mm[i]:g}x{eig.height_mm[i]:g}", "eig_nats": float(eig.score[i])}
                     for i in order]
-        perp = rank_setups(m_mean, run.setups)
-        best, sp = perp.best()
-        next_perp = {"setup": str(best), "score": sp,
-                     "eig_nats": float(expected_information_gain(post.cov, eig.information[int(np.argmin(perp.score))]))
-                     if len(perp) == len(eig) else None}
     except ValueError as exc:
-        next_eig, next_perp = [], {"error": str(exc)}
+        next_eig = []
+        say(f"next setups by expected information gain skipped: {str(exc).splitlines()[0]}")
+    try:
+        best, sp = rank_setups(m_mean, run.setups).best()
+        hit = np.array([], int) if eig is None else np.flatnonzero((eig.width_mm == best.width_mm)
+                                                                    & (eig.height_mm == best.height_mm))
+        next_perp = {"setup": str(best), "score": sp, "eig_nats": float(eig.score[hit[0]]) if hit.size else None}
+    except ValueError as exc:
+        next_perp = {"error": str(exc).splitlines()[0]}
     say(f"next setup by simulated information ({SIMULATION_PRESET} preset's model)")
     try:
         info = rank_by_simulation(m_mean, run.setups, preset=SIMULATION_PRESET, forward=run.forward)

@@ -18,6 +18,7 @@ import warnings
 import zipfile
 
 from studies.commands.context import report_data_losses
+from studies.report import first_line as _first_line
 
 # modules under studies.commands, in the order of ``virheo --help``; each defines register(subparsers)
 COMMANDS = ("demo", "design", "simulate", "check", "estimate", "study", "rheometer", "report", "theta", "figures")
@@ -80,11 +81,6 @@ def _join_negative_values(argv: list[str]) -> list[str]:
         else:
             out.append(token)
     return out
-
-
-def _first_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def describe_os_error(exc: OSError) -> str:

@@ -130,11 +130,18 @@ def progress_bars(enabled: bool = True):
         yield callback
 
 
+def first_line(exc: BaseException) -> str:
+    """An exception as one line: its message's first line, or its type's name."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
 def write_estimate_report(out, est, experiments, *, frames, truth=None, extra: Mapping | None = None) -> dict:
     """result.json, flow_curve.png and per-setup overlays for an :class:`similarity.estimate.Estimate`.
 
     ``frames``: the simulated silhouettes of the estimate, one (8, H, W) array (or None) per experiment.
-    Returns the result dictionary that was written.
+    The pictures are optional: one that cannot be drawn is skipped with a line in ``notes`` (after the estimate's
+    own).  Returns the result dictionary that was written.
     """
     from mpm.loss import frame_losses
     from similarity.space import e_rel
@@ -148,6 +155,7 @@ def write_estimate_report(out, est, experiments, *, frames, truth=None, extra: M
         result["e_rel_per_stage"] = [e_rel(truth, s.material) for s in est.stages]
     result.update({k: v for k, v in est.to_dict().items() if k != "estimate"})
     result.update(extra or {})
+    notes = result.setdefault("notes", [])
     per_setup = []
     for e, sim in zip(experiments, frames):
         entry = {"name": e.name, "setup": f"{float(e.width_mm):g}x{float(e.height_mm):g}",
@@ -156,13 +164,21 @@ def write_estimate_report(out, est, experiments, *, frames, truth=None, extra: M
             losses = frame_losses(sim, e.frames)
             entry["frame_losses"] = [float(v) for v in losses]
             entry["loss"] = float(np.mean(losses))
-            entry["overlays"] = [str(p.relative_to(out)) for p in
-                                 overlay_pngs(out / "overlays", sim, e.frames, prefix=f"{entry['setup']}")]
+            try:  # optional: the estimate stands without its pictures
+                entry["overlays"] = [str(p.relative_to(out)) for p in
+                                     overlay_pngs(out / "overlays", sim, e.frames, prefix=f"{entry['setup']}")]
+            except Exception as exc:
+                notes.append(f"overlays of {entry['setup']} skipped: {first_line(exc)}")
+        else:
+            notes.append(f"overlays of {entry['setup']} skipped: the estimate's simulation in this setup failed")
         per_setup.append(entry)
     result["experiments"] = per_setup
     curves = {"estimate": est.material}
     curves.update({f"after stage {i}": s.material for i, s in enumerate(est.stages[:-1], start=1)})
-    flow_curve_png(out / "flow_curve.png", curves, dashed={"truth": truth} if truth is not None else None)
-    result["flow_curve"] = "flow_curve.png"
+    try:
+        flow_curve_png(out / "flow_curve.png", curves, dashed={"truth": truth} if truth is not None else None)
+        result["flow_curve"] = "flow_curve.png"
+    except Exception as exc:
+        notes.append(f"flow-curve plot skipped: {first_line(exc)}")
     write_json(out / "result.json", result)
     return result

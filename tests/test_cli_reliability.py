@@ -244,3 +244,40 @@ def test_estimate_points_to_the_validated_design_command(capsys, tmp_path, folde
     assert command[:2] == ["virheo", "design"] and command[-2:] == ["--done", "30x20"]
     assert main(command[1:] + ["--workers", "0", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["criterion"] == "information"
+
+
+def test_estimate_ends_with_an_estimate_when_the_proposal_has_no_normal(capsys, tmp_path, folder, fake):
+    """A runny yield-stress start in a 30 x 20 mm box: the stage estimates give no plane-Poiseuille flow there, so
+    section 6 has no normal to be perpendicular to.  The proposal is an optional step: the run keeps its estimate,
+    prints one note per stage saying what was skipped and why, and points at the simulated criterion."""
+    import shlex
+
+    out = tmp_path / "o"
+    assert main(["estimate", str(folder), "--out", str(out), "--preset", "footage", "--generations", "1",
+                 "--start", "0.01,0.5,10", "--workers", "0", "--quiet"]) == 0
+    stdout, stderr = capsys.readouterr()
+    result = json.loads((out / "result.json").read_text())
+    assert result["estimate"]["eta"] > 0 and result["next_setup"] is None
+    notes = [ln for ln in stderr.strip().splitlines() if "locale" not in ln]  # Taichi's import under pytest
+    assert notes == [f"virheo estimate: note: {n}" for n in result["notes"]] and len(notes) == len(result["stages"])
+    for k, line in enumerate(notes, start=1):
+        assert line.startswith(f"virheo estimate: note: next-setup proposal after stage {k} skipped: no "
+                               "plane-Poiseuille flow in 30x20 at this estimate: its normal is undefined")
+    assert stdout.startswith("estimate: eta = ")
+    line = next(ln for ln in stdout.splitlines() if ln.startswith("next setup: "))
+    command = shlex.split(line.split("the simulator's own criterion: ")[1])
+    assert command[:2] == ["virheo", "design"] and command[-2:] == ["--done", "30x20"]
+    material = command[command.index("--material") + 1]
+    # the same material through `virheo design`: no candidate box makes it flow, so both Theta criteria refuse in
+    # one line; a material that flows in other boxes gets an answer from those, the 29 x 20 mm box left out
+    for criterion in ("perpendicularity", "eig"):
+        line = one_error_line(capsys, ["design", "--material", material, "--done", "30x20", "--criterion", criterion])
+        assert line.startswith("virheo design: error: no ")
+    for criterion in ("perpendicularity", "eig"):
+        assert main(["design", "--material", "0.1,0.5,1", "--done", "29x20", "--done", "60x60", "--criterion", criterion,
+                     "--json"]) == 0
+        answer = json.loads(capsys.readouterr().out)
+        assert answer["notes"] == ["no plane-Poiseuille flow in 29x20 at this estimate: its normal is undefined"]
+        assert answer["valid_candidates"] > 0
+    assert main(["design", "--material", "0.1,0.5,1", "--done", "29x20", "--criterion", "eig"]) == 0
+    assert "  left out: no plane-Poiseuille flow in 29x20" in capsys.readouterr().out

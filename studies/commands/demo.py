@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from mpm.params import DEFAULT_DENSITY_KG_M3
 from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real, seed
@@ -49,6 +50,8 @@ def run(args: argparse.Namespace) -> int:
         frames = E.simulated_frames(est.material, filmed, preset=args.preset, forward=run.forward)
         result = write_estimate_report(run.out, est, filmed, frames=frames, truth=truth,
                                        extra={"simulator": run.forward.simulator, **run.counts()})
+    for note in result["notes"]:
+        sys.stderr.write(f"virheo demo: note: {note}\n")
     m = est.material
     print(f"truth:    eta = {truth.eta:.4g} Pa s^n, n = {truth.n:.4g}, sigma_y = {truth.sigma_y:.4g} Pa")
     print(f"estimate: eta = {m.eta:.4g} Pa s^n, n = {m.n:.4g}, sigma_y = {m.sigma_y:.4g} Pa")

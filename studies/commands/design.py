@@ -113,6 +113,7 @@ def run(args) -> int:
             "validation": validated,
             "reliability": reliability_line(validated),
             "valid_candidates": len(ranking),
+            "notes": list(ranking.notes),
             "plot": str(plot_path) if plot_path else None,
         }, indent=1))
     else:
@@ -123,6 +124,8 @@ def run(args) -> int:
                f"the {preset} preset's model" if args.criterion == "information" else f"Theta map: {theta.name}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; {how}")
+        for note in ranking.notes:
+            print(f"  left out: {note}")
         model = ("linear-Gaussian model with the simulated loss Hessians" if args.criterion == "information"
                  else "linear-Gaussian model")
         print("  expected gain: " + (f"{gain:.3f} nats (expected information gain, {model})"

@@ -19,6 +19,9 @@ def register(subparsers) -> None:
                    help="experiment folders (settings.xml, camera_params.xml, config_01..08.png)")
     add_preset_option(p, default="footage")
     p.add_argument("--seed", type=seed, default=0, help="CMA-ES seed (default 0)")
+    p.add_argument("--start", default=None, metavar="ETA,N,SIGMA_Y",
+                   help="stage 1's starting point in SI (eta [Pa s^n], n [-], sigma_y [Pa]), e.g. a rheometer's fit "
+                   "or an earlier estimate (default: the centre of the material space)")
     p.add_argument("--slip-mm", type=float, default=None, metavar="B",
                    help="Navier slip length of the floor and walls in mm, in every stage (default: the preset's; "
                    "footage: sticking throughout; footage-1p: 1 mm in its finishing stage; 0: sticking throughout; measured effect "
@@ -63,13 +66,14 @@ def run(args: argparse.Namespace) -> int:
         preset = replace(preset, slip_length_m=args.slip_mm * 1e-3)
     if args.density_correction:
         preset = replace(preset, density_correction=True)
+    start = None if args.start is None else E.Material.parse(args.start).check_in_space()
     experiments = load_experiments(args.dirs, "estimate")
     with open_run(args) as run:
         est = E.estimate(experiments, preset=preset, seed=args.seed, forward=run.forward,
-                         generations=args.generations, progress=run.progress)
+                         generations=args.generations, progress=run.progress, start=start)
         frames = E.simulated_frames(est.material, experiments, preset=preset, forward=run.forward)
-        write_estimate_report(run.out, est, experiments, frames=frames,
-                              extra={"folders": [str(Path(d).resolve()) for d in args.dirs], **run.counts()})
+        result = write_estimate_report(run.out, est, experiments, frames=frames,
+                                       extra={"folders": [str(Path(d).resolve()) for d in args.dirs], **run.counts()})
     m, model = est.material, est.model
     print(f"estimate: eta = {m.eta:.4g} Pa s^n, n = {m.n:.4g}, sigma_y = {m.sigma_y:.4g} Pa "
           f"(loss {est.loss:.5f} at {model.cell_mm:g} mm cells, {model.ppc} particle(s) per cell per axis"
@@ -78,11 +82,16 @@ def run(args: argparse.Namespace) -> int:
           f"{run.cost_line(est.simulations)})")
     for w in est.warnings:
         sys.stderr.write(f"virheo estimate: warning: {w}\n")
+    for note in result["notes"]:
+        sys.stderr.write(f"virheo estimate: note: {note}\n")
+    done = " ".join(f"--done {e.width_mm:g}x{e.height_mm:g}" for e in experiments)
+    design = f"virheo design --material {m.eta:.4g},{m.n:.4g},{m.sigma_y:.4g} {done}"
     if est.next_setup is not None:
-        done = " ".join(f"--done {e.width_mm:g}x{e.height_mm:g}" for e in experiments)
         print(f"next setup: {est.next_setup} mm (width x height), by the paper's perpendicularity criterion, which "
-              f"proved weak in the simulator's own information; the validated choice: "
-              f"virheo design --material {m.eta:.4g},{m.n:.4g},{m.sigma_y:.4g} {done}")
+              f"proved weak in the simulator's own information; the validated choice: {design}")
+    else:
+        print(f"next setup: none proposed by the paper's perpendicularity criterion (note above); the simulator's "
+              f"own criterion: {design}")
     print(f"report: {run.out / 'result.json'}")
     print(f"uncertainty (posterior, credible intervals, next setup by information gain, HTML page): virheo report {run.out}")
     return 0
