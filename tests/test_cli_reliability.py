@@ -281,3 +281,19 @@ def test_estimate_ends_with_an_estimate_when_the_proposal_has_no_normal(capsys, 
         assert answer["valid_candidates"] > 0
     assert main(["design", "--material", "0.1,0.5,1", "--done", "29x20", "--criterion", "eig"]) == 0
     assert "  left out: no plane-Poiseuille flow in 29x20" in capsys.readouterr().out
+
+
+def test_estimate_on_shared_thin_box_footage_ends_with_an_estimate_and_a_note(capsys, tmp_path, fake, shared_data):
+    """The shared 29 x 20 mm footage of thousand island dressing through the CLI's own code path (the fake forward
+    model simulates): a runny yield-stress start leaves the stage estimates without plane-Poiseuille flow in 29x20,
+    and the run still ends with its estimate and one note per skipped proposal."""
+    folder = shared_data / "real_world" / "ref_Island_2.0_2.9_2"
+    out = tmp_path / "island"
+    assert main(["estimate", str(folder), "--out", str(out), "--preset", "footage", "--generations", "1",
+                 "--start", "0.01,0.5,10", "--workers", "0", "--quiet"]) == 0
+    stdout, stderr = capsys.readouterr()
+    result = json.loads((out / "result.json").read_text())
+    assert stdout.startswith("estimate: eta = ") and result["setups"] == ["29x20"]
+    notes = [ln for ln in stderr.splitlines() if ln.startswith("virheo estimate: note: ")]
+    assert len(notes) == len(result["notes"]) >= 1
+    assert "no plane-Poiseuille flow in 29x20 at this estimate: its normal is undefined" in notes[0]
