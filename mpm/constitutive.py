@@ -9,48 +9,12 @@ batch.
 Python float literals inside the funcs take Taichi's ``default_fp``: keep data and default_fp alike.
 """
 
-from dataclasses import dataclass
-
 import numpy as np
 import taichi as ti
 
 from mpm import runtime
-from mpm.params import FLOW_RULES, check_flow_rule
-
-NEWTON_ITERATIONS = 8
-CBRT_ITERATIONS = 64  # cap of the Halley cube root (it doubles or halves per iteration far from the root)
-CBRT_TOL = 1e-5  # relative change at which the cube root stops (error left ~ CBRT_TOL^3)
-# early exit of the Taichi solve once a Newton step in log(e) is below this: the error left is about
-# G''/(2 G') step^2 <= (1/n - 1)^2/8 step^2 < 2e-9 for n >= 0.3, below f32 resolution
-NEWTON_TOL = 1e-4
-NO_WARM_START = 1e30  # log(e) start of a particle that was elastic last step: the solve starts at log(e_trial)
-SQRT2 = float(np.sqrt(2.0))
-SQRT2_3 = float(np.sqrt(2.0 / 3.0))
-
-
-# ---------------------------------------------------------------------------------------------------
-# flow-rule coefficients
-
-
-@dataclass(frozen=True)
-class FlowRule:
-    """q = alpha*||dev sigma||_F is compared with beta*sigma_y; L_v b_e = -c*gamma_HB*s_hat*b_e."""
-
-    alpha: float
-    beta: float
-    c: float
-
-
-_RULES = dict(zip(FLOW_RULES, (
-    FlowRule(alpha=1.0 / SQRT2, beta=1.0, c=SQRT2),  # eqs. 14, 15, 18
-    FlowRule(alpha=1.0, beta=SQRT2_3, c=2.0),  # yue2015: von Mises, no 1/sqrt(2)
-)))
-
-
-def get_flow_rule(name: str) -> FlowRule:
-    """The coefficients of flow rule ``name`` ("paper" or "yue2015")."""
-    return _RULES[check_flow_rule(name)]
-
+from mpm.solver_constants import (CBRT_ITERATIONS, CBRT_TOL, NEWTON_ITERATIONS, NEWTON_TOL,  # noqa: F401 (re-exported)
+                                  NO_WARM_START, SQRT2, SQRT2_3, FlowRule, get_flow_rule)
 
 # ---------------------------------------------------------------------------------------------------
 # numpy: stress, yield, flow rate (arrays of shape (..., 3, 3), parameters broadcast over ...)
@@ -180,7 +144,7 @@ def is_plastic_np(be_trial, mu, sigma_y, flow_rule: str = "paper") -> np.ndarray
 _IDENTITY = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
 
 
-_COEFFICIENTS = {y: (r.alpha, r.beta, r.c) for y, r in ((False, _RULES["paper"]), (True, _RULES["yue2015"]))}
+_COEFFICIENTS = {y: (r.alpha, r.beta, r.c) for y, r in ((False, get_flow_rule("paper")), (True, get_flow_rule("yue2015")))}
 
 
 @ti.func
@@ -302,7 +266,7 @@ def return_mapping_taichi(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rul
     """Run the Taichi ``return_mapping`` over a batch (N, 3, 3) in ``dtype`` (float32 or float64), its
     Newton solve started from ``log_e0`` (broadcast; default: from log(e_trial)). Returns (new b_e as
     float64, plastic flags as bool, log of the excess stress e of eq. 57 where plastic, else NaN)."""
-    yue = get_flow_rule(flow_rule) is _RULES["yue2015"]
+    yue = get_flow_rule(flow_rule) is get_flow_rule("yue2015")
     runtime.ensure_taichi()
     be = np.ascontiguousarray(np.asarray(be_trial).reshape(-1, 3, 3), dtype=dtype)
     old = np.ascontiguousarray(np.broadcast_to(np.asarray(be_old), np.shape(be_trial)).reshape(-1, 3, 3),

@@ -25,8 +25,7 @@ import taichi as ti
 from mpm.stencil import COUNT, DONE, ERROR, NEED, NX, OVERFLOW, OX, build_stencil
 from mpm.walls import build_walls
 
-HIDDEN, PLASTIC, FROZEN = 1, 2, 4  # particle flag bits
-ERRORS = {1: "a particle position became NaN", 2: "particles left the region the flow can reach"}
+from mpm.solver_constants import ERR_LEFT_REACH, ERR_NAN, ERRORS, FROZEN, HIDDEN, PLASTIC  # noqa: F401 (ERRORS re-exported)
 
 
 def build_kernels(dim: int, tasks: int, atomic: bool):
@@ -242,7 +241,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 count = 1
                 for a in ti.static(range(D)):
                     if lo[a] < lim[a] or hi[a] > lim[3 + a]:
-                        win[ERROR] = 2
+                        win[ERROR] = ERR_LEFT_REACH
                     count *= hi[a] + 3 - lo[a]
                 if win[ERROR] == 0:
                     if count > capg:
@@ -301,7 +300,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                     xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx, mu,
                                           eta, nn, sy, zmid, lh, yue, slipping, mp, vol, dens)
                     if (xn != xn).any():
-                        win[ERROR] = 1
+                        win[ERROR] = ERR_NAN
                     base = stencil_base(xn, inv_dx, lh)
                     for a in ti.static(range(D)):
                         ti.atomic_min(acc[0, a], base[a])
@@ -329,7 +328,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                         acc[t, 3 + a] = hi[a]
                     accf[t] = ti.sqrt(vmax2)
                     if bad:
-                        win[ERROR] = 1
+                        win[ERROR] = ERR_NAN
         # 6. count the completed step
         for _ in range(1):
             if win[OVERFLOW] == 0 and win[ERROR] == 0:

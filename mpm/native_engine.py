@@ -3,19 +3,21 @@
 It runs the physics of the Taichi step (``mpm.kernels``): the same scene, constants, flow rules, walls, density
 correction and time-step schedule, in float32, vectorised for the CPU it runs on (AVX-512, AVX2 or a generic
 path, chosen at run time; ``$VIRHEO_NATIVE_ISA`` forces one, for testing). Its agreement with the Taichi engine
-is measured by bench/bench_engine_agreement.py (docs/performance.md). Importing this module does not import
-Taichi (a simulation imports mpm.constitutive for its constants, which does, without starting it). ``mpm.runtime`` decides which engine runs.
+is measured by bench/bench_engine_agreement.py (docs/performance.md). Neither importing this module nor simulating
+imports Taichi: the constants it shares with the Taichi engine live in ``mpm.solver_constants``.
+``mpm.runtime`` decides which engine runs.
 """
 from __future__ import annotations
 
-import math
 import os
 import sys
 
 import numpy as np
 
+from mpm.engine_run import RunStats, frame_record
 from mpm.params import FPS, N_FRAMES, frame_times
-from mpm.runtime import SimulationError
+from mpm.solver_constants import (ERR_SPEED, ERRORS, FROZEN, HIDDEN, NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START, PLASTIC,
+                                  SimulationError, get_flow_rule)
 
 try:
     from mpm import _native
@@ -24,26 +26,28 @@ except ImportError as exc:  # not built: no compiler at install time
     _native = None
     _IMPORT_ERROR = exc
 
-HIDDEN, PLASTIC, FROZEN = 1, 2, 4  # particle flag bits, as in mpm.kernels
-ERRORS = {1: "a particle position became NaN", 2: "particles left the region the flow can reach"}
 _SAID = {"isa": False}
+INTERFACE = 2  # the calling convention this module speaks (engine.cpp's INTERFACE): a build that differs is stale
 
 
 def available() -> bool:
-    """True when the compiled extension is importable."""
-    return _native is not None
+    """True when the compiled extension is importable and built from sources of this calling convention."""
+    return _native is not None and getattr(_native, "INTERFACE", 1) == INTERFACE
 
 
 def why_unavailable() -> str:
     """One line: why the native engine cannot run ('' when it can)."""
     if _native is None:
         return f"mpm._native does not import ({_IMPORT_ERROR}); reinstall with a C++ compiler: pip install -e ."
+    if not available():
+        return (f"mpm._native was built from older sources (interface {getattr(_native, 'INTERFACE', 1)}, this "
+                f"checkout needs {INTERFACE}): rebuild it with pip install -e .")
     return ""
 
 
 def isa() -> str:
     """The SIMD path this CPU runs: ``$VIRHEO_NATIVE_ISA`` if set, else the best one it supports."""
-    if _native is None:
+    if not available():
         raise ValueError(why_unavailable())
     runs = _native.isas()
     want = os.environ.get("VIRHEO_NATIVE_ISA", "").strip().lower()
@@ -63,11 +67,11 @@ def isa() -> str:
 
 
 class NativeRun:
-    """One simulation on the native engine; ``execute`` has the contract of ``mpm.solver._Run.execute``."""
+    """One simulation on the native engine (an :class:`mpm.engine_run.EngineRun`)."""
 
     def __init__(self, scene, eta, n, sigma_y, yue: bool, slip_m: float = 0.0, density_correction: bool = False,
                  body=None, threads: int = 1, *, cfl: float, substeps: int):
-        if _native is None:
+        if not available():
             raise ValueError(why_unavailable())
         self.scene = scene
         self.eta, self.n, self.sigma_y, self.yue = float(eta), float(n), float(sigma_y), bool(yue)
@@ -78,17 +82,20 @@ class NativeRun:
         self.cfl, self.substeps = float(cfl), int(substeps)  # the time-step schedule, as mpm.solver sets it
         self.isa = isa()
 
-    def _params(self, cfl: float):
-        from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START, get_flow_rule
-
+    def params(self, count: int) -> dict:
+        """The run's parameters by name, as the C++ engine reads them into its ``Params`` (mpm/native/types.h)."""
         s = self.scene
         rule = get_flow_rule("yue2015" if self.yue else "paper")
-        fp = np.zeros(25, np.float64)
-        fp[:] = (s.cell_m, s.particle_mass, s.particle_volume, s.kappa, s.mu, self.eta, self.n, self.sigma_y,
-                   self.body[0], self.body[1], self.body[2], s.plane_z_m, s.half_length_m / s.cell_m, self.slip_m,
-                   NEWTON_TOL, NO_WARM_START, cfl, s.wave_speed, s.gravity, s.speed_limit, FPS, NEWTON_ITERATIONS,
-                   rule.alpha, rule.beta, rule.c)
-        return fp
+        return dict(
+            dim=s.dim, density_correction=self.density_correction, slipping=self.slip_m > 0, threads=self.threads,
+            substeps=self.substeps, n_particles=count, n_frames=N_FRAMES, newton_iterations=NEWTON_ITERATIONS,
+            alpha=rule.alpha, beta=rule.beta, flow_c=rule.c,
+            dx=s.cell_m, particle_mass=s.particle_mass, particle_volume=s.particle_volume, kappa=s.kappa, mu=s.mu,
+            eta=self.eta, n=self.n, sigma_y=self.sigma_y, body_x=self.body[0], body_y=self.body[1], body_z=self.body[2],
+            plane_z=s.plane_z_m, half_length_cells=s.half_length_m / s.cell_m, slip=self.slip_m,
+            newton_tol=NEWTON_TOL, no_warm_start=NO_WARM_START,
+            cfl=self.cfl, wave_speed=s.wave_speed, gravity=s.gravity, speed_limit=s.speed_limit, fps=FPS,
+        )
 
     def execute(self, progress=None):
         s = self.scene
@@ -102,18 +109,16 @@ class NativeRun:
         lim[:d] = np.floor(lo / s.cell_m) - 1
         lim[3:3 + d] = np.ceil(hi / s.cell_m) + 1
         times = np.ascontiguousarray(frame_times(), np.float64)
-        ip = np.array([d, self.density_correction, self.slip_m > 0, self.threads,
-                       self.substeps, count, N_FRAMES], np.int32)
         out_x = np.empty((N_FRAMES, count, d), np.float32)
         out_flags = np.empty((N_FRAMES, count), np.uint8)
         out_j = np.zeros(N_FRAMES)
         out_mass = np.zeros(N_FRAMES)
         callback = None if progress is None else (lambda k: progress(k, N_FRAMES))
         error, value, steps, dt_min, dt_max, vmax_seen, sorts, refills = _native.simulate(
-            pos, flags0, self._params(self.cfl), ip,
+            pos, flags0, self.params(count),
             np.ascontiguousarray(s.boxes(), np.float64), lim, times, out_x, out_flags, out_j, out_mass, callback,
             self.isa)
-        if error == 3:
+        if error == ERR_SPEED:
             raise SimulationError(f"simulation blew up: speed {value:.3g} m/s exceeds {s.speed_limit:.3g} m/s")
         if error:
             raise SimulationError(f"simulation blew up: {ERRORS.get(error, 'unknown error')}")
@@ -121,32 +126,28 @@ class NativeRun:
         frames3, front, visible = [], [], []
         for k in range(N_FRAMES):
             x = out_x[k].astype(np.float64)
-            hidden = (out_flags[k] & HIDDEN) != 0
-            moving = (out_flags[k] & FROZEN) == 0
-            frames3.append(s.visible_positions(x, hidden))
-            visible.append(int((~hidden).sum()))
-            front.append(float(x[moving, 0].max()) if moving.any() else 0.0)
+            positions, n_visible, x_front = frame_record(s, x, (out_flags[k] & HIDDEN) != 0, (out_flags[k] & FROZEN) != 0)
+            frames3.append(positions)
+            visible.append(n_visible)
+            front.append(x_front)
         final = out_flags[-1]
-        stats = dict(
+        stats = RunStats(
             n_particles=count, steps=int(steps), dt_min=float(dt_min), dt_max=float(dt_max),
             max_speed=float(vmax_seen), plastic_count=int(((final & PLASTIC) != 0).sum()), mean_J=out_j.tolist(),
             mass_kg=m_total, grid_mass_rel_err=float(np.max(np.abs(out_mass - m_total)) / m_total),
             n_visible=visible, wave_speed=s.wave_speed, spacing_m=s.spacing_m, grid_capacity=0,
-            frozen_count=int(((final & FROZEN) != 0).sum()), isa=self.isa, sorts=int(sorts),
-            window_refills=int(refills),
+            frozen_count=int(((final & FROZEN) != 0).sum()),
         )
-        return frames3, np.array(front), stats
+        return frames3, np.array(front), stats.to_dict() | dict(isa=self.isa, sorts=int(sorts), window_refills=int(refills))
 
 
 def return_mapping(be_trial, be_old, mu, eta, n, sigma_y, dt, *, flow_rule: str = "paper", log_e0=None):
     """The native engine's return mapping over a batch: the contract of
     ``mpm.constitutive.return_mapping_taichi`` (float32). Returns (new b_e as float64, plastic flags, log of the
     excess stress where plastic, else NaN)."""
-    from mpm.constitutive import NEWTON_ITERATIONS, NEWTON_TOL, NO_WARM_START, get_flow_rule
-
     log_e0 = NO_WARM_START if log_e0 is None else log_e0
 
-    if _native is None:
+    if not available():
         raise ValueError(why_unavailable())
     rule = get_flow_rule(flow_rule)
     be = np.ascontiguousarray(np.asarray(be_trial, np.float32).reshape(-1, 3, 3))

@@ -28,10 +28,6 @@ _SAID: set = set()  # the notices this process has printed (or left to the proce
 _STARTED = {"arch": None}  # the architecture Taichi was initialised for
 
 
-class SimulationError(RuntimeError):
-    """The simulation blew up (NaN, runaway speed, particles leaving the reachable region), on any engine."""
-
-
 def _wanted() -> str:
     want = os.environ.get("VIRHEO_ARCH", "auto").strip().lower() or "auto"
     if want not in ARCH_VALUES:

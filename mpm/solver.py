@@ -18,10 +18,10 @@ import numpy as np
 import taichi as ti
 
 from mpm import kernels as kn
-from mpm.constitutive import NO_WARM_START
 from mpm.engine import Engine, engine
+from mpm.engine_run import RunStats, frame_record, substeps
 from mpm import runtime
-from mpm.runtime import SimulationError
+from mpm.solver_constants import NO_WARM_START, SimulationError
 from mpm import scene as sc
 from mpm.params import (DEFAULT_DEPTH_MM, FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule,
                         frame_times)
@@ -98,7 +98,7 @@ def _compile_notice(eng):
 
 def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
              depth_mm=DEFAULT_DEPTH_MM, image_size=WORKING_SIZE, precision="f32", ppc=None, slip_length_m=None,
-             density_correction=False, progress=None) -> Simulation:
+             density_correction=False, kappa_pa=None, mu_pa=None, progress=None) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
@@ -110,6 +110,7 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     the tangential wall velocity is b times the wall-normal shear rate);
     density_correction: cap each particle's volume ratio at the one its neighbours' spacing implies where
     particles crowd (``mpm.kernels``; measured: docs/method/forward-model.md, "Density correction");
+    kappa_pa, mu_pa: the elastic moduli in Pa (default the paper's, ``mpm.scene.KAPPA_PA`` and ``MU_PA``);
     precision: "f32" or "f64"; flow_rule: one of ``FLOW_RULES``; progress: optional callable
     ``progress(frames_done, 8)`` called after each simulated frame.
     The engine is ``mpm.runtime.engine_for(precision)`` (``$VIRHEO_ARCH``); ``stats["arch"]`` names it.
@@ -119,7 +120,9 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     size = _check_options(dim, flow_rule, precision, image_size)
     slip = check_slip_length(SLIP_LENGTH_M if slip_length_m is None else slip_length_m)
     scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
-                              depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc)
+                              depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc,
+                              kappa_pa=sc.KAPPA_PA if kappa_pa is None else kappa_pa,
+                              mu_pa=sc.MU_PA if mu_pa is None else mu_pa)
     t_start, cpu_start = time.perf_counter(), time.process_time()
     start, name, tasks = runner(dim, precision)
     t_ready = time.perf_counter()
@@ -145,9 +148,9 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
 
 def runner(dim: int, precision: str = "f32"):
     """``(start, engine, tasks)`` for the engine that ``mpm.runtime`` chooses for ``precision``: ``start(scene, eta,
-    n, sigma_y, yue, slip_m=0.0, density_correction=False, body=None)`` makes a run whose ``execute(progress)``
-    returns (frames, front, stats); ``engine`` names it ("native", "taichi-cpu" or "cuda"); ``tasks``: its threads
-    (Taichi: its grid copies). ValueError (one line) for an unknown or unavailable engine."""
+    n, sigma_y, yue, slip_m=0.0, density_correction=False, body=None)`` makes an :class:`mpm.engine_run.EngineRun`;
+    ``engine`` names it ("native", "taichi-cpu" or "cuda"); ``tasks``: its threads (Taichi: its grid copies).
+    ValueError (one line) for an unknown or unavailable engine."""
     name = runtime.engine_for(precision, say=True)
     if name == "native":
         from mpm import native_engine
@@ -160,7 +163,7 @@ def runner(dim: int, precision: str = "f32"):
 
 
 class _Run:
-    """One simulation on an engine's buffers."""
+    """One simulation on a Taichi engine's buffers (an :class:`mpm.engine_run.EngineRun`)."""
 
     def __init__(self, eng: Engine, scene: sc.DamBreak, eta, n, sigma_y, yue: bool, slip_m: float = 0.0,
                  density_correction: bool = False, body=None):
@@ -246,7 +249,6 @@ class _Run:
 
     def execute(self, progress=None):
         eng, scene = self.eng, self.scene
-        c = scene.wave_speed
         t = 0.0
         steps = 0
         dts = []
@@ -262,32 +264,29 @@ class _Run:
                     raise SimulationError(f"simulation blew up: speed {vmax:.3g} m/s exceeds "
                                           f"{scene.speed_limit:.3g} m/s")
                 vmax_seen = max(vmax_seen, vmax)
-                # CFL: elastic wave speed plus particle speed, with room for a chunk of free-fall
-                dt_cfl = CFL * scene.cell_m / (c + vmax + scene.gravity * (t_target - t))
-                m = max(1, math.ceil((t_target - t) / dt_cfl - 1e-9))
-                dt = (t_target - t) / m
+                m, dt = substeps(t, t_target, vmax, scene, CFL)
                 self._advance(m, dt)
                 t = t_target
                 steps += m
                 dts.append(dt)
             x, hidden, frozen, jm = self._snapshot()
-            frames3.append(self.scene.visible_positions(x, hidden))
-            visible.append(int((~hidden).sum()))
-            moving = ~frozen
-            front.append(float(x[moving, 0].max()) if moving.any() else 0.0)
+            positions, n_visible, x_front = frame_record(scene, x, hidden, frozen)
+            frames3.append(positions)
+            visible.append(n_visible)
+            front.append(x_front)
             mean_j.append(jm)
             eng.grid_mass(eng.grid, eng.win, eng.out)
             mass_err.append(abs(float(eng.out.to_numpy()[0]) - m_total) / m_total)
             if progress is not None:
                 progress(k + 1, N_FRAMES)
         flags = eng.flags.to_numpy()[: self.count]
-        stats = dict(
+        stats = RunStats(
             n_particles=self.count, steps=steps, dt_min=float(min(dts)), dt_max=float(max(dts)), max_speed=float(vmax_seen),
             plastic_count=int(((flags & kn.PLASTIC) != 0).sum()), mean_J=mean_j, mass_kg=m_total,
-            grid_mass_rel_err=max(mass_err), n_visible=visible, wave_speed=c,
+            grid_mass_rel_err=max(mass_err), n_visible=visible, wave_speed=scene.wave_speed,
             spacing_m=scene.spacing_m, grid_capacity=eng.cap_g, frozen_count=int(((flags & kn.FROZEN) != 0).sum()),
         )
-        return frames3, np.array(front), stats
+        return frames3, np.array(front), stats.to_dict()
 
     def _snapshot(self):
         eng, n = self.eng, self.count

@@ -123,3 +123,20 @@ def test_native_engine_flushes_subnormals_only_while_it_simulates():
                           env={**os.environ, "VIRHEO_ARCH": "native"})
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert proc.stdout.strip().splitlines()[-1] == "True 8 True True"
+
+
+def test_native_constants_are_the_python_ones():
+    """The flag bits and error codes are defined once, in mpm.solver_constants; the C++ engine's constexpr copies
+    carry the same values, and the Taichi engine imports them."""
+    import re
+
+    from mpm import kernels, solver_constants as C
+
+    native = Path(__file__).resolve().parent.parent / "mpm" / "native"
+    cpp = {name: int(value) for name, value in re.findall(r"\b([A-Z_]+) = (\d+)\b", (native / "types.h").read_text())}
+    text = (native / "kernel.h").read_text() + (native / "engine.cpp").read_text()
+    for name in ("HIDDEN", "PLASTIC", "FROZEN", "ERR_NAN", "ERR_LEFT_REACH", "ERR_SPEED", "ERR_INTERRUPTED"):
+        assert cpp[name] == getattr(C, name), name
+    assert (kernels.HIDDEN, kernels.PLASTIC, kernels.FROZEN, kernels.ERRORS) == (C.HIDDEN, C.PLASTIC, C.FROZEN, C.ERRORS)
+    # the C++ sources use the named codes, not bare numbers
+    assert not re.search(r"(res\.error = |return )[1-4];", text)

@@ -156,19 +156,63 @@ int call_progress(void* ctx, int frame) {
     return stop;
 }
 
-// simulate(pos, flags, fparams, iparams, boxes, lim, frame_times, out_x, out_flags, out_meanj, out_mass,
-//          progress, isa) -> (error, error_value, steps, dt_min, dt_max, vmax_seen, sorts, refills)
+// The run's parameters by name (a dict from mpm.native_engine.NativeRun.params), into the fields of Params.
+bool read_params(PyObject* d, virheo::Params& P, int& n) {
+    if (!PyDict_Check(d)) {
+        PyErr_SetString(PyExc_TypeError, "native engine: the parameters must be a dict");
+        return false;
+    }
+    struct Field {
+        const char* name;
+        float* f;
+        double* g;
+        int* i;
+    };
+    const Field fields[] = {
+        {"dim", nullptr, nullptr, &P.dim}, {"density_correction", nullptr, nullptr, &P.dens},
+        {"slipping", nullptr, nullptr, &P.slipping}, {"threads", nullptr, nullptr, &P.threads},
+        {"substeps", nullptr, nullptr, &P.substeps}, {"n_particles", nullptr, nullptr, &n},
+        {"n_frames", nullptr, nullptr, &P.n_frames}, {"newton_iterations", nullptr, nullptr, &P.newton_iterations},
+        {"alpha", &P.alpha}, {"beta", &P.beta}, {"flow_c", &P.flow_c},
+        {"dx", &P.dx}, {"particle_mass", &P.mp}, {"particle_volume", &P.vol}, {"kappa", &P.kappa}, {"mu", &P.mu},
+        {"eta", &P.eta}, {"n", &P.n}, {"sigma_y", &P.sy}, {"body_x", &P.body[0]}, {"body_y", &P.body[1]},
+        {"body_z", &P.body[2]}, {"plane_z", &P.zmid}, {"half_length_cells", &P.lh}, {"slip", &P.slip},
+        {"newton_tol", &P.newton_tol}, {"no_warm_start", &P.no_warm_start},
+        {"cfl", nullptr, &P.cfl}, {"wave_speed", nullptr, &P.wave_speed}, {"gravity", nullptr, &P.gravity},
+        {"speed_limit", nullptr, &P.speed_limit}, {"fps", nullptr, &P.fps},
+    };
+    if (PyDict_Size(d) != (Py_ssize_t)(sizeof(fields) / sizeof(fields[0]))) {
+        PyErr_Format(PyExc_ValueError, "native engine: %zd parameters given, %zu expected", PyDict_Size(d),
+                     sizeof(fields) / sizeof(fields[0]));
+        return false;
+    }
+    for (const Field& field : fields) {
+        PyObject* v = PyDict_GetItemString(d, field.name);
+        if (!v) {
+            PyErr_Format(PyExc_ValueError, "native engine: parameter %s missing", field.name);
+            return false;
+        }
+        double x = PyFloat_AsDouble(v);
+        if (x == -1.0 && PyErr_Occurred()) return false;
+        if (field.f) *field.f = (float)x;
+        if (field.g) *field.g = x;
+        if (field.i) *field.i = (int)x;
+    }
+    return true;
+}
+
+// simulate(pos, flags, params, boxes, lim, frame_times, out_x, out_flags, out_meanj, out_mass, progress, isa)
+//   -> (error, error_value, steps, dt_min, dt_max, vmax_seen, sorts, refills); params: a dict (read_params)
 PyObject* py_simulate(PyObject*, PyObject* args) {
-    PyObject *o_pos, *o_flags, *o_fp, *o_ip, *o_boxes, *o_lim, *o_times, *o_x, *o_f, *o_j, *o_m, *progress;
+    PyObject *o_pos, *o_flags, *o_params, *o_boxes, *o_lim, *o_times, *o_x, *o_f, *o_j, *o_m, *progress;
     const char* isa;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOs", &o_pos, &o_flags, &o_fp, &o_ip, &o_boxes, &o_lim, &o_times, &o_x,
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOs", &o_pos, &o_flags, &o_params, &o_boxes, &o_lim, &o_times, &o_x,
                           &o_f, &o_j, &o_m, &progress, &isa))
         return nullptr;
-    Buffer ip, fp;
-    if (!get_buffer(o_ip, ip, 4, 7, false, "iparams") || !get_buffer(o_fp, fp, 8, 25, false, "fparams")) return nullptr;
-    const int* I = static_cast<const int*>(ip.view.buf);
-    const double* Fp = static_cast<const double*>(fp.view.buf);
-    int dim = I[0], n = I[5], frames = I[6];
+    virheo::Params P{};
+    int n = 0;
+    if (!read_params(o_params, P, n)) return nullptr;
+    int dim = P.dim, frames = P.n_frames;
     if ((dim != 2 && dim != 3) || n <= 0 || frames <= 0) {
         PyErr_SetString(PyExc_ValueError, "native engine: dim must be 2 or 3 and the scene must hold particles");
         return nullptr;
@@ -185,15 +229,6 @@ PyObject* py_simulate(PyObject*, PyObject* args) {
         !get_buffer(o_f, of, 1, (Py_ssize_t)frames * n, true, "out_flags") ||
         !get_buffer(o_j, oj, 8, frames, true, "out_mean_j") || !get_buffer(o_m, om, 8, frames, true, "out_grid_mass"))
         return nullptr;
-    virheo::Params P{};
-    P.dim = dim, P.dens = I[1], P.slipping = I[2], P.threads = I[3], P.substeps = I[4];
-    P.n_frames = frames;
-    float* fdst[] = {&P.dx, &P.mp, &P.vol, &P.kappa, &P.mu, &P.eta, &P.n, &P.sy, &P.body[0], &P.body[1],
-                     &P.body[2], &P.zmid, &P.lh, &P.slip, &P.newton_tol, &P.no_warm_start};
-    for (int i = 0; i < 16; i++) *fdst[i] = (float)Fp[i];
-    P.cfl = Fp[16], P.wave_speed = Fp[17], P.gravity = Fp[18], P.speed_limit = Fp[19], P.fps = Fp[20];
-    P.newton_iterations = (int)Fp[21];
-    P.alpha = (float)Fp[22], P.beta = (float)Fp[23], P.flow_c = (float)Fp[24];
     const double* B = static_cast<const double*>(bx.view.buf);
     for (int b = 0; b < 4; b++)
         for (int s = 0; s < 2; s++)
@@ -227,7 +262,7 @@ PyObject* py_simulate(PyObject*, PyObject* args) {
     }
     flush.off();
     PyEval_RestoreThread(saved);
-    if (r.error == 4) {
+    if (r.error == virheo::ERR_INTERRUPTED) {
         if (!PyErr_Occurred()) PyErr_SetString(PyExc_KeyboardInterrupt, "");
         return nullptr;
     }
@@ -299,4 +334,14 @@ PyModuleDef module = {PyModuleDef_HEAD_INIT, "_native", "Native CPU engine of th
 
 }  // namespace
 
-PyMODINIT_FUNC PyInit__native(void) { return PyModule_Create(&module); }
+// the calling convention of simulate and return_mapping: mpm.native_engine.INTERFACE must match, else the build is stale
+constexpr long INTERFACE = 2;
+
+PyMODINIT_FUNC PyInit__native(void) {
+    PyObject* m = PyModule_Create(&module);
+    if (m && PyModule_AddIntConstant(m, "INTERFACE", INTERFACE) < 0) {
+        Py_DECREF(m);
+        return nullptr;
+    }
+    return m;
+}

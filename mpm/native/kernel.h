@@ -352,7 +352,8 @@ VH_INLINE V4 node_sum(const V& a) {
 #else
 VH_INLINE V4 node_sum(const V& a) { return a.r[0] + a.r[1] + a.r[2]; }
 #endif
-constexpr int HIDDEN = 1, PLASTIC = 2, FROZEN = 4;
+using virheo::ERR_INTERRUPTED, virheo::ERR_LEFT_REACH, virheo::ERR_NAN, virheo::ERR_SPEED;
+using virheo::FROZEN, virheo::HIDDEN, virheo::PLASTIC;
 constexpr int INT_BIG = 2147483647;
 
 struct Window {
@@ -1041,7 +1042,7 @@ struct Engine {
         so.miss = miss;
     }
 
-    // one step after grid A's update: returns 0, or the error code (1: NaN)
+    // one step after grid A's update: returns 0, or the error code (ERR_NAN, ERR_LEFT_REACH)
     int step(float dt, bool scatter) {
         std::vector<SliceOut> outs(T);
         if (scatter) open_window(1 - cur, 1);
@@ -1055,9 +1056,9 @@ struct Engine {
             for (int a = 0; a < D; a++) lo[a] = std::min(lo[a], so.lo[a]), hi[a] = std::max(hi[a], so.hi[a]);
         }
         vmax = std::sqrt(vm2);
-        if (nan) return 1;
+        if (nan) return ERR_NAN;
         if (scatter) {
-            if (outside_reach()) return 2;
+            if (outside_reach()) return ERR_LEFT_REACH;
             cur = 1 - cur;
             if (miss) {  // a stencil left the margin: P2G again on a window from the exact box
                 refills++;
@@ -1106,7 +1107,7 @@ struct Engine {
                 double t_target = t_prev + (sub + 1) * (t_frame - t_prev) / P.substeps;
                 double vm = (double)vmax;
                 if (!std::isfinite(vm) || vm > P.speed_limit) {
-                    res.error = 3, res.error_value = vm;
+                    res.error = ERR_SPEED, res.error_value = vm;
                     return finish(res);
                 }
                 res.vmax_seen = std::max(res.vmax_seen, vm);
@@ -1115,7 +1116,7 @@ struct Engine {
                 double dt = (t_target - t) / m;
                 float dtf = (float)dt;
                 if (outside_reach()) {
-                    res.error = 2;
+                    res.error = ERR_LEFT_REACH;
                     return finish(res);
                 }
                 open_window(cur, 0);
@@ -1136,7 +1137,7 @@ struct Engine {
             }
             write_frame(k, out);
             if (progress && progress(ctx, k + 1)) {
-                res.error = 4;
+                res.error = ERR_INTERRUPTED;
                 return finish(res);
             }
         }

@@ -3,6 +3,10 @@
 
 namespace virheo {
 
+// particle flag bits and the error codes of a run: the values of mpm/solver_constants.py (a test compares them)
+constexpr int HIDDEN = 1, PLASTIC = 2, FROZEN = 4;
+constexpr int ERR_NAN = 1, ERR_LEFT_REACH = 2, ERR_SPEED = 3, ERR_INTERRUPTED = 4;
+
 struct Params {
     int dim, dens, slipping, threads, substeps, n_frames, newton_iterations;
     float alpha, beta, flow_c;  // the flow rule: yield when alpha ||dev sigma|| > beta sigma_y; L_v b_e = -c ...
@@ -21,7 +25,7 @@ struct Outputs {
 };
 
 struct Result {
-    int error = 0;  // 1 NaN position, 2 left the reachable region, 3 speed limit, 4 interrupted
+    int error = 0;  // 0 or one of the ERR_ codes above
     double error_value = 0, dt_min = 1e300, dt_max = 0, vmax_seen = 0;
     long steps = 0, sorts = 0, refills = 0;
 };
