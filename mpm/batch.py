@@ -51,7 +51,8 @@ def camera_json(camera) -> str | None:
 def request_for(material, setup, *, density: float, depth_mm: float = DEFAULT_DEPTH_MM, camera=None, cell_mm=None,
                 ppc: int | None = None, dim: int = 3, flow_rule: str = "paper", precision: str = "f32",
                 image_size=WORKING_SIZE, simulator: str = DEFAULT_SIMULATOR, slip_length_m=None,
-                density_correction: bool = False, engine: str | None = None) -> SimRequest:
+                density_correction: bool = False, engine: str | None = None, kappa_pa: float | None = None,
+                mu_pa: float | None = None) -> SimRequest:
     """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``),
     for ``engine`` (None: the one that ``$VIRHEO_ARCH`` chooses; ValueError, one line, for an unknown or
     unavailable one)."""
@@ -64,6 +65,7 @@ def request_for(material, setup, *, density: float, depth_mm: float = DEFAULT_DE
         density_correction=bool(density_correction), dim=int(dim), flow_rule=str(flow_rule),
         precision=str(precision), image_size=tuple(int(v) for v in image_size),
         simulator=simulator, code_version=code_version(simulator), engine=engine or runtime.engine_for(str(precision)),
+        kappa_pa=None if kappa_pa is None else float(kappa_pa), mu_pa=None if mu_pa is None else float(mu_pa),
     )
 
 
@@ -128,6 +130,7 @@ def run_mpm(request: SimRequest) -> SimResult:
         flow_rule=request.flow_rule, camera=camera, depth_mm=request.depth_mm,
         image_size=tuple(request.image_size), precision=request.precision, ppc=request.ppc,
         slip_length_m=request.slip_length_m, density_correction=request.density_correction,
+        kappa_pa=request.kappa_pa, mu_pa=request.mu_pa,
     )
     sil = None if getattr(sim, "silhouettes", None) is None else np.asarray(sim.silhouettes, dtype=bool)
     return SimResult(sil, np.asarray(sim.front_m, float), np.asarray(sim.times, float), dict(sim.stats or {}))

@@ -21,6 +21,8 @@ import numpy as np
 from mpm import batch, runtime
 from mpm.experiment import Experiment
 from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE, check_flow_rule
+from mpm.ranges import check_cell_mm, check_modulus, check_ppc
+from mpm.scene import KAPPA_PA, MU_PA
 from mpm.store import SimRequest, SimResult, Store
 
 OnResult = Callable[[SimRequest, SimResult | None, bool], None]  # (request, result, served from the store)
@@ -29,9 +31,10 @@ OnResult = Callable[[SimRequest, SimResult | None, bool], None]  # (request, res
 @dataclass(frozen=True)
 class ForwardModel:
     """The forward model of a simulation: MPM cell width in mm, particles per cell per axis, the walls' Navier
-    slip length in metres, the solver's density correction, the flow rule and the engine.  None: the solver's
-    default (the validated discretisation, sticking walls); ``engine`` None: the one ``$VIRHEO_ARCH`` chooses
-    (:func:`mpm.runtime.engine_for`), else one of :data:`mpm.runtime.ENGINES`."""
+    slip length in metres, the solver's density correction, the flow rule, the engine and the elastic moduli in Pa.
+    None: the solver's default (the validated discretisation, sticking walls, the paper's kappa = 1e4 Pa and mu =
+    1e3 Pa); ``engine`` None: the one ``$VIRHEO_ARCH`` chooses (:func:`mpm.runtime.engine_for`), else one of
+    :data:`mpm.runtime.ENGINES`."""
 
     cell_mm: float | None = None
     ppc: int | None = None
@@ -39,12 +42,20 @@ class ForwardModel:
     density_correction: bool = False
     flow_rule: str = "paper"
     engine: str | None = None
+    kappa_pa: float | None = None
+    mu_pa: float | None = None
 
     def __post_init__(self):
-        if self.cell_mm is not None and not self.cell_mm > 0:
-            raise ValueError(f"cell_mm={self.cell_mm} must be > 0 mm")
-        if self.ppc is not None and not self.ppc >= 1:
-            raise ValueError(f"ppc={self.ppc} must be >= 1 particle per cell per axis")
+        """Every bound the scene enforces, checked here once, so that a bad model never reaches a worker."""
+        if self.cell_mm is not None:
+            check_cell_mm(self.cell_mm)
+        if self.ppc is not None:
+            check_ppc(self.ppc)
+        if self.slip_length_m is not None and not 0.0 <= self.slip_length_m <= 1.0:  # also refuses nan
+            raise ValueError(f"slip_length_m={self.slip_length_m!r} must be within 0..1 m (0: sticking walls)")
+        for name in ("kappa_pa", "mu_pa"):
+            if getattr(self, name) is not None:
+                check_modulus(getattr(self, name), name)
         if self.engine is not None and self.engine not in runtime.ENGINES:
             raise ValueError(f"unknown engine {self.engine!r}: expected one of {', '.join(runtime.ENGINES)}")
         check_flow_rule(self.flow_rule)
@@ -57,10 +68,12 @@ class ForwardModel:
         return ForwardModel(float(DEFAULT_CELL_MM if self.cell_mm is None else self.cell_mm),
                             int(PARTICLES_PER_CELL if self.ppc is None else self.ppc),
                             float(SLIP_LENGTH_M if self.slip_length_m is None else self.slip_length_m),
-                            bool(self.density_correction), self.flow_rule, self.engine)
+                            bool(self.density_correction), self.flow_rule, self.engine, self.kappa_pa, self.mu_pa)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """The model as a dict; the paper's moduli (None) are left out, as in records written before the model
+        carried them."""
+        return {k: v for k, v in asdict(self).items() if not (k in ("kappa_pa", "mu_pa") and v is None)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ForwardModel":
@@ -153,6 +166,8 @@ class Forward:
             slip_length_m=model.slip_length_m or None,  # sticking walls keep the key they always had
             density_correction=model.density_correction, flow_rule=model.flow_rule,
             image_size=(int(frames.shape[-1]), int(frames.shape[-2])), simulator=self.simulator, engine=model.engine,
+            kappa_pa=None if model.kappa_pa in (None, KAPPA_PA) else model.kappa_pa,  # the paper's: the keys they had
+            mu_pa=None if model.mu_pa in (None, MU_PA) else model.mu_pa,
         )
 
     @staticmethod

@@ -1,4 +1,4 @@
-"""What the forward model accepts: densities, and materials beyond the paper's material space.
+"""What the forward model accepts: densities, discretisations, and materials beyond the paper's material space.
 
 The paper's material space (section 3.1) is where estimation searches.  A single simulation may go
 beyond it, up to 100 times its bounds; extreme values (eta = 1e30 Pa s^n) make the solver crawl and are
@@ -9,6 +9,10 @@ from __future__ import annotations
 import math
 
 DENSITY_RANGE_KG_M3 = (300.0, 5000.0)
+CELL_MM_RANGE = (0.2, 10.0)  # MPM cell width in mm (0.2 mm: about the particle budget of a 70 x 70 mm box)
+PPC_RANGE = (1, 4)  # particles per cell per axis
+# elastic moduli kappa and mu (section 4.2: 1e4 and 1e3 Pa); the explicit time step shrinks as sqrt(modulus)
+MODULUS_RANGE_PA = (1e2, 1e6)
 # accepted for one simulation (SI): eta in Pa s^n, n dimensionless, sigma_y in Pa
 ETA_LIMIT = 3000.0
 N_RANGE_SIMULABLE = (0.1, 2.0)  # n > 1 (shear-thickening) is outside the paper's space: simulated, with a warning
@@ -29,6 +33,39 @@ def check_density(density: float, what: str = "density") -> float:
     if not (math.isfinite(value) and lo <= value <= hi):
         raise ValueError(f"{what} {density:g} kg/m^3 lies outside the accepted range {lo:g}..{hi:g} kg/m^3")
     return value
+
+
+def check_cell_mm(cell_mm, what: str = "cell_mm") -> float:
+    """``cell_mm`` as a float if it is a finite number of mm within ``CELL_MM_RANGE``, else a one-line ValueError."""
+    lo, hi = CELL_MM_RANGE
+    try:
+        value = float(cell_mm)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} {cell_mm!r} is not a number of mm") from None
+    if not (math.isfinite(value) and lo <= value <= hi):
+        raise ValueError(f"{what}={cell_mm!r} mm lies outside the accepted cell widths {lo:g}..{hi:g} mm")
+    return value
+
+
+def check_ppc(ppc, what: str = "ppc") -> int:
+    """``ppc`` as an int if it is a whole number within ``PPC_RANGE``, else a one-line ValueError."""
+    lo, hi = PPC_RANGE
+    if isinstance(ppc, bool) or not isinstance(ppc, (int, float)) or ppc != int(ppc) or not lo <= ppc <= hi:
+        raise ValueError(f"{what}={ppc!r} must be a whole number of particles per cell per axis within {lo}..{hi}")
+    return int(ppc)
+
+
+def check_modulus(value, what: str) -> float:
+    """An elastic modulus in Pa as a float if it is finite and within ``MODULUS_RANGE_PA``, else a one-line
+    ValueError."""
+    lo, hi = MODULUS_RANGE_PA
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} {value!r} is not a number of Pa") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"{what}={v:g} Pa lies outside the accepted moduli {lo:g}..{hi:g} Pa")
+    return v
 
 
 def check_simulable(eta: float, n: float, sigma_y: float) -> None:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mpm.params import DEFAULT_DEPTH_MM, FPS, N_FRAMES, Setup
-from mpm.ranges import check_density
+from mpm.ranges import check_cell_mm, check_density, check_modulus, check_ppc
 
 KAPPA_PA = 1.0e4  # bulk modulus kappa (section 4.2)
 MU_PA = 1.0e3  # shear modulus mu
@@ -49,21 +49,18 @@ class DamBreak:
 
     @classmethod
     def build(cls, setup, *, density: float, cell_mm: float, depth_mm: float = DEFAULT_DEPTH_MM, dim: int = 3,
-              ppc: int = REFERENCE_PARTICLES_PER_CELL) -> "DamBreak":
+              ppc: int = REFERENCE_PARTICLES_PER_CELL, kappa_pa: float = KAPPA_PA, mu_pa: float = MU_PA) -> "DamBreak":
         setup = Setup.of(setup).check_in_space()
         w, h = setup.width_mm * 1e-3, setup.height_mm * 1e-3
         density = check_density(density)
         depth_mm = float(depth_mm)
         if not (math.isfinite(depth_mm) and 5.0 <= depth_mm <= 200.0):
             raise ValueError(f"depth must be within 5-200 mm, got {depth_mm!r}")
-        cell_mm = float(cell_mm)
-        if not (math.isfinite(cell_mm) and 0.2 <= cell_mm <= 10.0):
-            raise ValueError(f"cell width must be within 0.2-10 mm, got {cell_mm!r}")
+        cell_mm = check_cell_mm(cell_mm)
         if dim not in (2, 3):
             raise ValueError(f"dim must be 2 or 3, got {dim!r}")
-        if ppc not in (1, 2, 3, 4):
-            raise ValueError(f"particles per cell must be 1-4 per axis, got {ppc!r}")
-        scene = cls(w, h, depth_mm * 1e-3, density, cell_mm * 1e-3, dim, int(ppc))
+        scene = cls(w, h, depth_mm * 1e-3, density, cell_mm * 1e-3, dim, check_ppc(ppc),
+                    check_modulus(kappa_pa, "kappa_pa"), check_modulus(mu_pa, "mu_pa"))
         if scene.n_particles > MAX_PARTICLES:
             raise ValueError(f"cell width {cell_mm:g} mm needs {scene.n_particles} particles (max {MAX_PARTICLES})")
         return scene

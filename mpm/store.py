@@ -31,7 +31,7 @@ import time
 import warnings
 import zipfile
 import zlib
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -70,11 +70,16 @@ class SimRequest:
     simulator: str = "mpm.batch:run_mpm"
     code_version: str = ""
     engine: str = ""  # the engine that simulates it (mpm.runtime.ENGINES); "" in requests stored before engines
+    kappa_pa: float | None = None  # elastic moduli in Pa (None: the paper's, mpm.scene.KAPPA_PA and MU_PA)
+    mu_pa: float | None = None
 
     def to_dict(self) -> dict:
-        d = asdict(self)
+        d = {f.name: getattr(self, f.name) for f in fields(self)}  # flat values: no deep copy needed
         if not self.engine:  # a request stored before engines keeps its key (and never matches a new request)
             del d["engine"]
+        for name in ("kappa_pa", "mu_pa"):  # the paper's moduli: the keys they always had
+            if d[name] is None:
+                del d[name]
         d["image_size"] = list(self.image_size)
         d["camera"] = json.loads(self.camera) if self.camera else None
         return d

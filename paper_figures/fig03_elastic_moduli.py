@@ -3,20 +3,18 @@
 The paper's moduli are kappa = 1e4 Pa, mu = 1e3 Pa (section 4.2, ``mpm.scene``). Each column scales one or
 both by 10; the lower row of each material shows the difference to the x1/x1 silhouette at t = 1/3 s
 (blue: x1 only, red: scaled only) with the fraction of differing pixels averaged over the 8 frames (eq. 3).
-Simulations go through the store (``mpm.forward``) with a simulating function of this module that scales the
-moduli of ``mpm.simulate``'s scene; stiffer moduli shorten the explicit time step by up to sqrt(10).
+Simulations go through the store (``mpm.forward``) with forward models that carry the scaled moduli
+(``ForwardModel(kappa_pa=..., mu_pa=...)``); stiffer moduli shorten the explicit time step by up to sqrt(10).
 Usage: python -m paper_figures.fig03_elastic_moduli [OUT_DIR] [--quick]
 """
 from __future__ import annotations
 
-import dataclasses
-import hashlib
 from pathlib import Path
 
 import numpy as np
 
-from mpm import batch
 from mpm.forward import ForwardModel, blank_experiment
+from mpm.scene import KAPPA_PA, MU_PA
 from mpm.loss import frame_losses
 from paper_figures._plot import Context, crop_box, difference_rgb, pyplot, show, silhouette_rgb
 from studies.report import save_figure
@@ -27,47 +25,6 @@ MATERIALS = [("Worcestershire sauce (Table 1)", 0.55, 0.81, 1.95, 1200.0),
 SETUP_MM = (40.0, 50.0)  # width x height
 SCALES = [(1, 1), (10, 1), (1, 10), (10, 10)]  # (kappa factor, mu factor)
 CELL_MM = {True: 5.0, False: None}  # quick: the demo preset's 5 mm cells; full: the solver's default (1.5 mm)
-
-# the forward model of this module is the default one with scaled moduli: its version follows the solver's
-CODE_VERSION = batch.code_version(batch.DEFAULT_SIMULATOR) + "-" + hashlib.sha256(
-    Path(__file__).read_bytes()).hexdigest()[:8]
-
-
-def _run_scaled(request, kappa_factor: float, mu_factor: float):
-    """:func:`mpm.batch.run_mpm` with the scene's kappa and mu multiplied (one simulation per process at a time)."""
-    from mpm import scene as sc
-
-    build = sc.DamBreak.build
-
-    def scaled(*args, **kwargs):
-        s = build(*args, **kwargs)
-        return dataclasses.replace(s, kappa=s.kappa * kappa_factor, mu=s.mu * mu_factor)
-
-    sc.DamBreak.build = scaled
-    try:
-        return batch.run_mpm(request)
-    finally:
-        sc.DamBreak.build = build
-
-
-def run_kappa10_mu1(request):
-    return _run_scaled(request, 10.0, 1.0)
-
-
-def run_kappa1_mu10(request):
-    return _run_scaled(request, 1.0, 10.0)
-
-
-def run_kappa10_mu10(request):
-    return _run_scaled(request, 10.0, 10.0)
-
-
-def simulator_for(kappa_factor: int, mu_factor: int) -> str | None:
-    """The simulating function of the scaled moduli (None: the solver's own, x1/x1)."""
-    if (kappa_factor, mu_factor) == (1, 1):
-        return None
-    return f"{__name__}:run_kappa{kappa_factor}_mu{mu_factor}"
-
 
 def make(out_dir, quick: bool = False, *, context: Context | None = None) -> list[Path]:
     from mpm.camera import Camera
@@ -81,8 +38,8 @@ def make(out_dir, quick: bool = False, *, context: Context | None = None) -> lis
     for label, eta, n, sy, rho in MATERIALS:
         shot = blank_experiment(setup, density=rho, camera=camera)
         for kf, mf in SCALES:
-            reqs.append(forward.with_simulator(simulator_for(kf, mf)).request(Material(eta, n, sy), shot,
-                                                                            ForwardModel(CELL_MM[quick])))
+            model = ForwardModel(CELL_MM[quick], kappa_pa=KAPPA_PA * kf, mu_pa=MU_PA * mf)
+            reqs.append(forward.request(Material(eta, n, sy), shot, model))
             keys.append((label, kf, mf))
     results = dict(zip(keys, forward.evaluate(reqs)))
     plt = pyplot()

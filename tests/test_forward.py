@@ -48,7 +48,7 @@ def test_model_round_trip_and_the_layouts_of_older_result_files():
     assert full == ForwardModel(DEFAULT_CELL_MM, PARTICLES_PER_CELL, SLIP_LENGTH_M, False, "paper", "taichi-cpu")
     assert full.resolved() == full
     for bad, needle in (({"cell": 1.0}, "unknown key"), ({"engine": "gpu"}, "unknown engine"),
-                        ({"cell_mm": 0.0}, "must be > 0"), ({"flow_rule": "x"}, "unknown flow rule")):
+                        ({"cell_mm": 0.0}, "lies outside the accepted cell widths"), ({"flow_rule": "x"}, "unknown flow rule")):
         with pytest.raises(ValueError, match=needle):
             ForwardModel.from_dict(bad)
 
@@ -176,3 +176,67 @@ def test_forward_closes_only_what_it_opened(tmp_path):
     with pytest.raises(NotADirectoryError):
         Forward(tmp_path / "file")
     assert isinstance(Forward(workers=0).executor, batch.InlineExecutor)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(ppc=99), "ppc=99 must be a whole number of particles per cell per axis within 1..4"),
+    (dict(ppc=0), "ppc=0 must be a whole number"),
+    (dict(ppc=1.5), "ppc=1.5 must be a whole number"),
+    (dict(cell_mm=0.01), "cell_mm=0.01 mm lies outside the accepted cell widths 0.2..10 mm"),
+    (dict(cell_mm=11.0), "cell_mm=11.0 mm lies outside"),
+    (dict(cell_mm=float("nan")), "cell_mm=nan mm lies outside"),
+    (dict(slip_length_m=-1e-3), "slip_length_m=-0.001 must be within 0..1 m"),
+    (dict(engine="gpu9000"), "unknown engine 'gpu9000'"),
+    (dict(flow_rule="nope"), "nope"),
+])
+def test_a_model_is_validated_once_at_construction_with_the_scenes_bounds(kwargs, message):
+    """Every bound the scene enforces holds at construction, as one line, so a bad model never reaches a worker;
+    the bounds at the edges of the accepted ranges construct and build a scene."""
+    from mpm.ranges import CELL_MM_RANGE, PPC_RANGE
+    from mpm.scene import DamBreak
+
+    with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(".", r"\.")) as info:
+        ForwardModel(**kwargs)
+    assert "\n" not in str(info.value)
+    for cell in CELL_MM_RANGE:
+        for ppc in PPC_RANGE:
+            ForwardModel(cell, ppc)  # the edges of the ranges are accepted
+    if "cell_mm" in kwargs or "ppc" in kwargs:  # and the scene refuses what the model refuses, with the same line
+        with pytest.raises(ValueError, match=message.replace("(", r"\(").replace(".", r"\.")):
+            DamBreak.build(Setup(30, 30), density=1000.0, **{"cell_mm": 5.0, "ppc": 1, **kwargs})
+
+
+def test_the_cli_reports_an_out_of_range_model_as_one_line(capsys, tmp_path):
+    from studies.cli import main
+
+    for option, value, message in (("--ppc", "99", "--ppc=99 must be a whole number"),
+                                   ("--cell-mm", "0.01", "--cell-mm=0.01 mm lies outside")):
+        assert main(["simulate", "--material", "1,0.5,1", "--setup", "30x30", option, value,
+                     "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith(f"virheo simulate: error: {message}"), err
+
+
+def test_the_model_carries_the_elastic_moduli_to_the_worker(tmp_path):
+    """kappa and mu are fields of the model: the paper's values keep the keys requests always had, others travel in
+    the request to the scene the worker builds (its P-wave speed, eq. of mpm.scene.elastic_wave_speed)."""
+    from mpm.camera import Camera
+    from mpm.scene import KAPPA_PA, MU_PA, elastic_wave_speed
+
+    forward = Forward(None)
+    shot = blank_experiment(Setup(20, 20), density=1000.0, camera=Camera.default(), image_size=SIZE)
+    m = Material(3.0, 0.6, 12.0)
+    default = forward.request(m, shot, ForwardModel(5.0, 1))
+    assert "kappa_pa" not in default.to_dict() and "kappa_pa" not in ForwardModel(5.0, 1).to_dict()
+    assert forward.request(m, shot, ForwardModel(5.0, 1, kappa_pa=KAPPA_PA, mu_pa=MU_PA)).key == default.key
+    stiff_model = ForwardModel(5.0, 1, kappa_pa=10 * KAPPA_PA, mu_pa=10 * MU_PA)
+    assert ForwardModel.from_dict(stiff_model.to_dict()) == stiff_model
+    stiff = forward.request(m, shot, stiff_model)
+    assert (stiff.kappa_pa, stiff.mu_pa) == (1e5, 1e4) and stiff.key != default.key
+    with pytest.raises(ValueError, match=r"kappa_pa=1e\+09 Pa lies outside the accepted moduli"):
+        ForwardModel(kappa_pa=1e9)
+    soft, hard = (batch.run_one(r) for r in (default, stiff))
+    assert soft.ok and hard.ok
+    assert soft.stats["wave_speed"] == pytest.approx(elastic_wave_speed(1000.0))
+    assert hard.stats["wave_speed"] == pytest.approx(elastic_wave_speed(1000.0, 1e5, 1e4))
+    assert hard.stats["steps"] > 2 * soft.stats["steps"]  # the explicit step shrinks with the wave speed

@@ -54,7 +54,7 @@ def _mask_png(mask: np.ndarray, path: Path) -> None:
 def run(args) -> int:
     from mpm import camera as cam
     from mpm import experiment as xp
-    from mpm.ranges import check_density, check_simulable
+    from mpm.ranges import check_cell_mm, check_density, check_ppc, check_simulable
     from mpm.params import Material, Setup
     from studies.report import overlay_pngs, write_json
 
@@ -85,12 +85,12 @@ def run(args) -> int:
         raise ValueError(f"--setup {setup} does not match the experiment's {exp.width_mm:g}x{exp.height_mm:g} mm")
     if args.density is not None:
         check_density(args.density, "--density")
-    if args.cell_mm is not None and not args.cell_mm > 0:
-        raise ValueError(f"--cell-mm {args.cell_mm:g} must be > 0 mm")
+    if args.cell_mm is not None:
+        check_cell_mm(args.cell_mm, "--cell-mm")
     if args.depth_mm is not None and not args.depth_mm > 0:
         raise ValueError(f"--depth-mm {args.depth_mm:g} must be > 0 mm")
-    if args.ppc is not None and not 1 <= args.ppc <= 4:
-        raise ValueError(f"--ppc {args.ppc} must be 1..4")
+    if args.ppc is not None:
+        check_ppc(args.ppc, "--ppc")
     camera = exp.camera if exp else (cam.Camera.from_xml(args.camera) if args.camera else cam.Camera.default())
     density = args.density or (exp.density if exp else DEFAULT_DENSITY_KG_M3)
     depth_mm = args.depth_mm or (exp.depth_mm if exp else DEFAULT_DEPTH_MM)
