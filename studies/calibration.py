@@ -43,14 +43,14 @@ def design(cases: int, seed: int = 0) -> list[tuple[Material, Setup]]:
 
     from scipy.stats import qmc
 
-    from studies.emulation import random_setups
+    from studies.sampling import random_setups
 
     if cases < 1:
         raise ValueError(f"cases={cases} must be >= 1")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # Sobol' balance wants 2^k points; any prefix is space-filling
         u = qmc.Sobol(d=3, scramble=True, seed=seed).random(int(cases))
-    return [(Material.from_array(denormalize(0.05 + 0.9 * p)), random_setups(1, np.random.default_rng([seed, i]))[0])
+    return [(Material.from_array(denormalize(0.05 + 0.9 * p)), random_setups(1, np.random.default_rng([seed, i]), replace=True)[0])
             for i, p in enumerate(u)]
 
 

@@ -19,35 +19,21 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import JsonRecord
-from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
 from similarity import estimate as E
 from similarity.space import denormalize, e_rel
 from studies.report import save_figure
+from studies.sampling import poisson_points, random_setups
 from studies.study import Study
 
 GOOD = 0.1  # E_rel <= 0.1 counts as good enough (section 7.1)
 
 
 def poisson_materials(count: int, seed: int = 0, radius: float = 0.3) -> list[Material]:
-    """``count`` materials spread over the normalised space by Poisson-disk sampling (scipy.stats.qmc).
-
-    The points are kept away from the box faces (5 %..95 %), where the paper's materials lie too.
-    """
-    from scipy.stats import qmc
-
-    r = radius
-    while True:
-        engine = qmc.PoissonDisk(d=3, radius=r, seed=seed)
-        pts = engine.random(count)
-        if len(pts) >= count:
-            break
-        r *= 0.85
-    return [Material.from_array(denormalize(0.05 + 0.9 * p)) for p in pts[:count]]
-
-
-def random_setups(count: int, rng: np.random.Generator) -> list[Setup]:
-    lo, hi = SETUP_RANGE_MM
-    return [Setup(float(w), float(h)) for w, h in rng.integers(lo, hi + 1, size=(count, 2))]
+    """``count`` materials spread over the normalised space by Poisson-disk sampling
+    (:func:`studies.sampling.poisson_points`), kept away from the box faces (5 %..95 %), where the paper's materials
+    lie too."""
+    return [Material.from_array(denormalize(0.05 + 0.9 * p)) for p in poisson_points(count, seed, radius)[0]]
 
 
 @dataclass
@@ -144,7 +130,7 @@ def planned_cases(out, *, materials: int, runs: int, seed: int) -> list[Emulatio
     return [EmulationCase(i, run, truth, first, None if out is None else
                           Path(out) / "cases" / f"case_{i:02d}_{run:02d}")
             for i, truth in enumerate(poisson_materials(materials, seed))
-            for run, first in enumerate(random_setups(runs, rng))]
+            for run, first in enumerate(random_setups(runs, rng, replace=True))]
 
 
 class EmulationStudy(Study):

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import read_json
-from mpm.params import DEFAULT_DENSITY_KG_M3, SETUP_RANGE_MM, Material, Setup
+from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_pairs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
@@ -45,6 +45,7 @@ from similarity.space import denormalize, normalize
 from studies.conditioning import conditioning  # noqa: F401 (re-exported)
 from studies.landscape_plots import plot_slices
 from studies.report import write_json
+from studies.sampling import poisson_disk, random_setups  # noqa: F401 (poisson_disk re-exported)
 from surrogate import theta_fit
 
 STUDY_FILE = "study.json"
@@ -118,42 +119,7 @@ class Pair:
     setup: Setup
 
 
-# -- sampling ----------------------------------------------------------------------------------------
-def poisson_disk(count: int, seed: int = 0, margin: float = 0.05, radius: float = 0.3,
-                 box=None) -> tuple[np.ndarray, float]:
-    """``count`` points in [margin, 1 - margin]^3 (or in ``box`` = (lo, hi) corners) by Poisson-disk
-    sampling (scipy.stats.qmc.PoissonDisk).
-
-    Returns the points (count, 3) and the minimum distance they respect (the radius, shrunk by 15 %
-    steps until ``count`` points fit, times the box's shortest side).
-    """
-    from scipy.stats import qmc
-
-    if count < 1:
-        raise ValueError(f"count={count} must be >= 1")
-    if not 0 <= margin < 0.5:
-        raise ValueError(f"margin={margin} must lie in [0, 0.5)")
-    r = radius
-    while True:
-        pts = qmc.PoissonDisk(d=3, radius=r, seed=seed).random(count)
-        if len(pts) >= count:
-            break
-        r *= 0.85
-    if box is None:
-        box = (np.full(3, margin), np.full(3, 1.0 - margin))
-    lo, hi = np.asarray(box[0], dtype=float), np.asarray(box[1], dtype=float)
-    side = hi - lo
-    return lo + side * pts[:count], r * float(np.min(side))
-
-
-def random_setups(count: int, rng: np.random.Generator) -> list[Setup]:
-    """``count`` distinct setups from the 1 mm grid of widths and heights (20..70 mm)."""
-    lo, hi = SETUP_RANGE_MM
-    size = hi - lo + 1
-    idx = rng.choice(size * size, size=count, replace=False)
-    return [Setup(float(lo + i % size), float(lo + i // size)) for i in idx]
-
-
+# -- sampling: studies.sampling ------------------------------------------------------------------------
 def grid_offsets(size: int, half_width: float) -> np.ndarray:
     """Offsets (size^3, 3) of a regular block [-half_width, half_width]^3, index order (eta, n, sigma_y)."""
     if size < 2:
@@ -170,7 +136,7 @@ def sample_pairs(config: StudyConfig) -> list[Pair]:
     pairs = []
     for u in pts:
         m = Material.from_array(denormalize(u))
-        pairs += [Pair(m, s) for s in random_setups(config.setups_per_material, rng)]
+        pairs += [Pair(m, s) for s in random_setups(config.setups_per_material, rng, replace=False)]
     return pairs
 
 

@@ -15,7 +15,8 @@ import numpy as np
 from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity.fd_hessian import angle_deg
 from similarity.space import denormalize
-from studies.landscapes import match, random_setups
+from studies.landscapes import match
+from studies.sampling import random_setups
 from surrogate import theta_fit
 
 
@@ -166,7 +167,7 @@ def compare_designs(ours, reference, *, count: int = 50, seed: int = 0) -> dict:
     agree = near = both = 0
     for _ in range(count):
         m = Material.from_array(denormalize(rng.uniform(0.05, 0.95, 3)))
-        s1 = random_setups(1, rng)[0]
+        s1 = random_setups(1, rng, replace=False)[0]
         a, b = choose(ours, m, s1), choose(reference, m, s1)
         if a is None or b is None:
             continue

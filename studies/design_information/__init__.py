@@ -25,7 +25,7 @@ Materials: a scrambled Sobol design over 5..95 % of the normalised space with on
 
 The first ``materials - held_out`` materials are the *selection* set: the recommended criterion is the one with
 the largest median normalised score there, if positive (else none).  The last ``held_out`` materials are
-reported apart: they decide the verdict.  Two further parts, optional (:mod:`studies.design_information_checks`): a
+reported apart: they decide the verdict.  Two further parts, optional (:mod:`studies.design_information.checks`): a
 Fig. 10-style **map** of realised information over a coarse grid of setups for the first materials (``maps``),
 and a **posterior check** (``posterior_check`` materials): for every candidate, the volume of an emcee posterior
 (eq. 1 of :mod:`similarity.likelihood` on an emulated two-setup loss) against the realised gain.
@@ -46,11 +46,11 @@ import numpy as np
 from mpm.files import write_json
 from mpm.params import SETUP_RANGE_MM, Setup
 from similarity import information as I
-from studies import design_information_checks as checks
-from studies.design_information_plots import plot_maps, plot_predicted
-from studies.design_information_records import (CriterionScores, InformationRecord, InformationSummary, MeasureScores,
+from studies.design_information import checks
+from studies.design_information.plots import plot_maps, plot_predicted
+from studies.design_information.records import (CriterionScores, InformationRecord, InformationSummary, MeasureScores,
                                                 StageOne, Verdict)
-from studies.design_information_table import table_markdown
+from studies.design_information.table import table_markdown
 from studies.design_study import DesignCase, case_folder, case_seed
 from studies.design_validation import DEFAULT_CRITERION, LARGEST, WITHIN, shipped_summary
 from studies.study import Study, tell
@@ -323,7 +323,7 @@ class InformationStudy(Study):
         return "  scores: " + ", ".join(f"{k} {v.score:.2f} ({v.pick})" for k, v in rec.scores().items())
 
     def after_cases(self, recs, *, forward, progress=None) -> None:
-        """The information maps and the posterior checks (:mod:`studies.design_information_checks`)."""
+        """The information maps and the posterior checks (:mod:`studies.design_information.checks`)."""
         for rec in recs[:self.maps]:
             tell(progress, f"information map of material {rec.case} ({self.map_steps} x {self.map_steps} setups)")
             checks.information_map(self.out, rec, steps=self.map_steps, forward=forward, tick=_ticker(progress))

@@ -32,7 +32,7 @@ class InformationMap(JsonRecord):
 
 
 @dataclass
-class PosteriorCheck(JsonRecord):
+class CandidateVolumes(JsonRecord):
     """The emcee posterior log-volume of each candidate of a material."""
 
     case: int
@@ -83,7 +83,7 @@ def information_map(out, rec, *, steps: int, forward, tick=None) -> InformationM
 
 
 def posterior_volume(out, rec, *, forward, points: int = 40, half_width: float = 0.15, min_ess: float = 400.0,
-                     max_steps: int = 6000) -> PosteriorCheck:
+                     max_steps: int = 6000) -> CandidateVolumes:
     """For every candidate of material ``rec``: the log-volume 1/2 log det(cov) of the emcee posterior (normalised
     space) of the two-setup footage (first setup + candidate), the loss emulated
     (:class:`surrogate.emulator.LossEmulator`) from ``points`` space-filling simulations in the box truth +-
@@ -101,7 +101,7 @@ def posterior_volume(out, rec, *, forward, points: int = 40, half_width: float =
     if path.is_file():
         c = read_json(path)
         if c.get("config") == cfg:
-            return PosteriorCheck.from_dict(c)
+            return CandidateVolumes.from_dict(c)
     preset = get_preset(cfg["preset"])
     u = normalize(rec.truth.as_array())
     X = np.vstack([u, space_filling(u, half_width, points, seed=rec.case)])
@@ -131,13 +131,13 @@ def posterior_volume(out, rec, *, forward, points: int = 40, half_width: float =
 
         post = sample(log_prob, u, seed=0, min_ess=min_ess, max_steps=max_steps)
         logvol.append(0.5 * float(np.linalg.slogdet(post.cov)[1]))
-    c = PosteriorCheck(case=rec.case, config=cfg, points=points, half_width=half_width, tau=tau, emulator_rmse=rmse,
+    c = CandidateVolumes(case=rec.case, config=cfg, points=points, half_width=half_width, tau=tau, emulator_rmse=rmse,
                        candidates=rec.candidates, log_volume=logvol)
     write_json(path, c)
     return c
 
 
-def volume_agreement(check: PosteriorCheck, rec) -> dict:
+def volume_agreement(check: CandidateVolumes, rec) -> dict:
     """Spearman between -log posterior volume and each measure's realised gain over a material's candidates."""
     return {m: I.rank_agreement(-np.array(check.log_volume), rec.realised(m)) for m in I.MEASURES}
 
@@ -146,5 +146,5 @@ def finished_maps(out) -> list[InformationMap]:
     return [InformationMap.from_dict(read_json(p)) for p in sorted(Path(out).glob("maps/map_*.json"))]
 
 
-def finished_checks(out) -> list[PosteriorCheck]:
-    return [PosteriorCheck.from_dict(read_json(p)) for p in sorted(Path(out).glob("posterior_check/check_*.json"))]
+def finished_checks(out) -> list[CandidateVolumes]:
+    return [CandidateVolumes.from_dict(read_json(p)) for p in sorted(Path(out).glob("posterior_check/check_*.json"))]

@@ -46,7 +46,7 @@ def plot_predicted(path, recs: list) -> Path:
 
 
 def plot_maps(path, maps: list, recs: list) -> Path:
-    """Fig. 10-style maps (:class:`studies.design_information_checks.InformationMap`) of realised gain over the
+    """Fig. 10-style maps (:class:`studies.design_information.checks.InformationMap`) of realised gain over the
     setup grid, first setup and picks marked."""
     import matplotlib
 

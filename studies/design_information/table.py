@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from similarity import information as I
-from studies import design_information_checks as checks
-from studies.design_information_records import InformationRecord, InformationSummary
+from studies.design_information import checks
+from studies.design_information.records import InformationRecord, InformationSummary
 from studies.design_validation import WITHIN
 
 MEASURE_LABELS = {"gain": "log det gain", "gain_min_eig": "smallest-eigenvalue gain",
@@ -19,7 +19,7 @@ def _fmt(v, spec=".2f") -> str:
 
 def table_markdown(recs: list[InformationRecord], summ: InformationSummary, done: list) -> str:
     """design_information.md: every material's picks and scores, the scores per measure and set, the posterior
-    check (``done``: :class:`studies.design_information_checks.PosteriorCheck`)."""
+    check (``done``: :class:`studies.design_information.checks.CandidateVolumes`)."""
     names = list(recs[0].config["criteria"])
     lines = ["| material | set | truth (eta, n, sigma_y) | first setup | stage-1 E_rel | "
              + " | ".join(f"{n}: pick, score" for n in names) + " |", "|---:|---|---|---|---:|" + "---|" * len(names)]
