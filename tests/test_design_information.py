@@ -99,7 +99,7 @@ def test_posterior_check_gives_one_volume_per_candidate_and_is_read_back(tmp_pat
     log-volume per candidate, smaller than the prior box's, the same result read back without simulating."""
     from mpm.forward import Forward
     from studies import design_information as D
-    from studies import design_information_checks as checks
+    from studies.design_information import checks
     from studies.calibration import design
     from studies.design_study import DesignCase
     from surrogate.theta import load
