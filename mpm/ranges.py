@@ -19,32 +19,36 @@ N_RANGE_SIMULABLE = (0.1, 2.0)  # n > 1 (shear-thickening) is outside the paper'
 SIGMA_Y_LIMIT = 4000.0
 
 
+def check_within(value, bounds: tuple, unit: str, what: str) -> float:
+    """``value`` as a float if it is a finite number within ``bounds`` (lo, hi, in ``unit``), else a one-line
+    ValueError naming ``what`` and the accepted range."""
+    lo, hi = bounds
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} {value!r} is not a number of {unit}") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise ValueError(f"{what} {v:g} {unit} lies outside the accepted range {lo:g}..{hi:g} {unit}")
+    return v
+
+
 def check_density(density: float, what: str = "density") -> float:
     """``density`` as a float in kg/m^3 if it is a finite number within ``DENSITY_RANGE_KG_M3`` (300..5000
     kg/m^3), else a one-line ValueError naming ``what`` and the accepted range.
 
     The one rule for a density: the dam-break scene (every simulation), ``settings.xml`` of an experiment folder
     and the ``--density`` options all call it (docs/user-guide.md, "What happens when...")."""
-    lo, hi = DENSITY_RANGE_KG_M3
-    try:
-        value = float(density)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} {density!r} is not a number of kg/m^3") from None
-    if not (math.isfinite(value) and lo <= value <= hi):
-        raise ValueError(f"{what} {density:g} kg/m^3 lies outside the accepted range {lo:g}..{hi:g} kg/m^3")
-    return value
+    return check_within(density, DENSITY_RANGE_KG_M3, "kg/m^3", what)
 
 
 def check_cell_mm(cell_mm, what: str = "cell_mm") -> float:
-    """``cell_mm`` as a float if it is a finite number of mm within ``CELL_MM_RANGE``, else a one-line ValueError."""
-    lo, hi = CELL_MM_RANGE
-    try:
-        value = float(cell_mm)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} {cell_mm!r} is not a number of mm") from None
-    if not (math.isfinite(value) and lo <= value <= hi):
-        raise ValueError(f"{what}={cell_mm!r} mm lies outside the accepted cell widths {lo:g}..{hi:g} mm")
-    return value
+    """The MPM cell width in mm within ``CELL_MM_RANGE`` (:func:`check_within`)."""
+    return check_within(cell_mm, CELL_MM_RANGE, "mm", what)
+
+
+def check_modulus(value, what: str) -> float:
+    """An elastic modulus in Pa within ``MODULUS_RANGE_PA`` (:func:`check_within`)."""
+    return check_within(value, MODULUS_RANGE_PA, "Pa", what)
 
 
 def check_ppc(ppc, what: str = "ppc") -> int:
@@ -53,19 +57,6 @@ def check_ppc(ppc, what: str = "ppc") -> int:
     if isinstance(ppc, bool) or not isinstance(ppc, (int, float)) or ppc != int(ppc) or not lo <= ppc <= hi:
         raise ValueError(f"{what}={ppc!r} must be a whole number of particles per cell per axis within {lo}..{hi}")
     return int(ppc)
-
-
-def check_modulus(value, what: str) -> float:
-    """An elastic modulus in Pa as a float if it is finite and within ``MODULUS_RANGE_PA``, else a one-line
-    ValueError."""
-    lo, hi = MODULUS_RANGE_PA
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{what} {value!r} is not a number of Pa") from None
-    if not (math.isfinite(v) and lo <= v <= hi):
-        raise ValueError(f"{what}={v:g} Pa lies outside the accepted moduli {lo:g}..{hi:g} Pa")
-    return v
 
 
 def check_simulable(eta: float, n: float, sigma_y: float) -> None:
