@@ -21,6 +21,7 @@ from mpm.forward import Forward, ForwardModel
 from mpm.params import Material
 from similarity.presets import setup_of
 from similarity.space import denormalize, from_search, normalize, to_search
+from similarity.progress import GenerationDone, Simulation, StageStarted
 
 POPSIZE = 7  # 4 + floor(3 ln 3) for 3 parameters
 RESAMPLE = 3  # rounds of redrawing NaN candidates (failed simulations) within one generation
@@ -157,7 +158,7 @@ class Objective:
         tick = None
         if self.progress:
             def tick(req, res, cached):
-                self.progress({"event": "simulation", "cached": cached})
+                self.progress(Simulation(bool(cached)))
         losses = self.forward.losses([self.material(x) for x in X], self.experiments, self.model, on_result=tick)
         return losses.mean(axis=1)
 
@@ -281,8 +282,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
                 state.offer(np.asarray(r[:3], float), r[3])
     setups = [str(setup_of(e)) for e in experiments]
     if progress:
-        progress({"event": "stage", "stage": stage_index, "setups": setups, "generations": generations,
-                  "generation": state.drawn // POPSIZE})
+        progress(StageStarted(stage_index, setups, generations, state.drawn // POPSIZE))
     budget = generations * POPSIZE  # candidate draws per stage, whatever the restarts' population
     while state.drawn < budget:
         if state.es.stop() or _stalled(state):
@@ -292,8 +292,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
         t0 = time.perf_counter()
         store.save_checkpoint(run_id, state)
         if progress:
-            progress({"event": "generation", "stage": stage_index, "generation": state.drawn // POPSIZE,
-                      "generations": generations, "best_loss": state.best_loss})
+            progress(GenerationDone(stage_index, state.drawn // POPSIZE, generations, state.best_loss))
     if state.best_x is None:
         raise RuntimeError(f"every simulation failed in stage {stage_index} ({', '.join(setups)})")
     state.result = Stage(

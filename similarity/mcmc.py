@@ -15,6 +15,7 @@ from typing import Callable
 import numpy as np
 
 from similarity.space import denormalize
+from similarity.progress import Sampling
 
 QUANTILES = (0.05, 0.5, 0.95)
 
@@ -141,7 +142,7 @@ def sample(log_prob: Callable[[np.ndarray], np.ndarray], x0, *, nwalkers: int = 
             ess = nwalkers * (it - burn) / max(t, 1.0)
             converged = bool(it > 50 * t and stable and np.all(np.isfinite(tau)))
             if progress:
-                progress({"event": "mcmc", "iteration": it, "tau": t, "ess": ess})
+                progress(Sampling(it, t, ess))
             if (converged and ess >= min_ess and it >= min_steps) or it >= max_steps:
                 break
         steps = min(check_every, max_steps - it)

@@ -34,6 +34,7 @@ from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, Poste
                                           read_posterior)
 from similarity.run_folder import Run, load_run, read_result  # noqa: F401 (re-exported)
 from similarity.space import denormalize, normalize
+from similarity.progress import Message
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
 MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
@@ -193,9 +194,9 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
         emu = LossEmulator(seed=seed).fit(Xf, yf)
         noise = base_noise.with_emulator(validation.rmse)
         if progress:
-            progress({"event": "message", "text": f"emulator: {len(yf)} training losses, cross-validated RMSE "
+            progress(Message(f"emulator: {len(yf)} training losses, cross-validated RMSE "
                       f"{validation.rmse:.2e} on the {validation.n_test} within reach of the best (their range "
-                      f"{validation.loss_range:.2e}); noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}"})
+                      f"{validation.loss_range:.2e}); noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}"))
         key = digest({"X": Xf.round(12).tolist(), "y": yf.tolist(), "noise": noise.to_dict(), "seed": seed,
                       "nwalkers": nwalkers})[:16]
         post = sample(box_log_posterior(noise, emu, lo, hi), x_hat, nwalkers=nwalkers, seed=seed,
@@ -209,9 +210,9 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
         y_chk = np.asarray(losses(X_chk), float)
         check = posterior_check(noise, emu, X_chk, y_chk, rounds=round_ + 1)
         if progress:
-            progress({"event": "message", "text": f"posterior check: {len(y_chk)} draws simulated, the emulator is "
+            progress(Message(f"posterior check: {len(y_chk)} draws simulated, the emulator is "
                       f"{check.optimism_nats:+.2f} nats optimistic on them (RMS {check.rms_nats:.2f}), "
-                      f"{check.failed} failed: {'trusted' if check.passed else 'retraining'}"})
+                      f"{check.failed} failed: {'trusted' if check.passed else 'retraining'}"))
         X, y = np.vstack([X, X_chk]), np.concatenate([y, y_chk])
         if check.passed or round_ == rounds:
             return CheckedFit(emu, validation, noise, post, check), X, y
@@ -249,7 +250,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
 
     def say(text):
         if progress:
-            progress({"event": "message", "text": text})
+            progress(Message(text))
 
     run = load_run(folder, forward=forward)
     check_backend(run.folder / "posterior.h5")  # before any simulation

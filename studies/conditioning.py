@@ -12,6 +12,7 @@ from similarity import estimate as E
 from similarity.emulation import probe_losses
 from similarity.fd_hessian import hessian_from_stencil, spectrum, stencil
 from similarity.space import normalize
+from similarity.progress import simulation_tick
 from studies.report import save_figure, write_json
 
 
@@ -44,7 +45,7 @@ def conditioning(out, material: Material, *, steps: int = 3, fd_step: float = 0.
     sizes = np.round(np.linspace(lo, hi, steps))
     setups = [Setup(float(w), float(h)) for h in sizes for w in sizes]
     probes = stencil(fd_step)
-    tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
+    tick = simulation_tick(progress)
     losses = np.concatenate([_stencil_losses(material, setups[k:k + CHUNK], probes, preset, forward, density, tick)
                              for k in range(0, len(setups), CHUNK)])
     cond = np.full(len(setups), np.nan)

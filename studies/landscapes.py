@@ -42,6 +42,7 @@ from similarity.emulation import probe_pairs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
 from similarity.normals import P_SEARCH, normals_at
 from similarity.space import denormalize, normalize
+from similarity.progress import Message, simulation_tick
 from studies.conditioning import conditioning  # noqa: F401 (re-exported)
 from studies.landscape_plots import plot_slices
 from studies.report import write_json
@@ -180,7 +181,7 @@ def run(out, config: StudyConfig, *, forward, progress=None, plots: int = 3) -> 
     t0 = time.perf_counter()
     pairs = _prepare(out, config)
     preset = E.get_preset(config.preset)
-    say = (lambda text: progress({"event": "message", "text": text})) if progress else (lambda text: None)
+    say = (lambda text: progress(Message(text))) if progress else (lambda text: None)
 
     # ground-truth footage, one batch for all pairs
     by_material: dict = {}
@@ -198,7 +199,7 @@ def run(out, config: StudyConfig, *, forward, progress=None, plots: int = 3) -> 
     offsets = np.vstack([block, probes])
     jobs = probe_pairs([(p.material, ref) for p, ref in zip(pairs, frames)], offsets)
     say(f"{len(jobs)} landscape probes ({len(offsets)} per pair)")
-    tick = (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
+    tick = simulation_tick(progress)
     losses = forward.pair_losses(jobs, preset.final, tick).reshape(len(pairs), -1)
 
     records = []

@@ -95,7 +95,9 @@ def overlay_pngs(folder, simulated: np.ndarray, captured: np.ndarray, *, prefix:
 
 @contextmanager
 def progress_bars(enabled: bool = True):
-    """Rich progress bars fed by the estimator's progress events; yields the callback (or None)."""
+    """Rich progress bars fed by the progress events (:mod:`similarity.progress`); yields the callback (or None)."""
+    from similarity.progress import GenerationDone, Message, Simulation, StageStarted
+
     if not enabled:
         yield None
         return
@@ -108,24 +110,21 @@ def progress_bars(enabled: bool = True):
         sims = bars.add_task("simulations run", total=None, info="")
         from_store = 0
 
-        def callback(event: dict):
+        def callback(event):
             nonlocal from_store
-            kind = event.get("event")
-            if kind == "stage":
-                key = event["stage"]
-                tasks[key] = bars.add_task(f"stage {key} ({' + '.join(event['setups'])})",
-                                           total=event["generations"], completed=event.get("generation", 0), info="")
-            elif kind == "generation" and event["stage"] in tasks:
-                bars.update(tasks[event["stage"]], completed=event["generation"],
-                            info=f"best loss {event['best_loss']:.5f}")
-            elif kind == "simulation":
-                if event.get("cached"):
+            if isinstance(event, StageStarted):
+                tasks[event.stage] = bars.add_task(f"stage {event.stage} ({' + '.join(event.setups)})",
+                                                   total=event.generations, completed=event.generation, info="")
+            elif isinstance(event, GenerationDone) and event.stage in tasks:
+                bars.update(tasks[event.stage], completed=event.generation, info=f"best loss {event.best_loss:.5f}")
+            elif isinstance(event, Simulation):
+                if event.cached:
                     from_store += 1
                     bars.update(sims, info=f"{from_store} results from the store")
                 else:
                     bars.advance(sims)
-            elif kind == "message":
-                bars.console.print(event["text"])
+            elif isinstance(event, Message):
+                bars.console.print(event.text)
 
         yield callback
 

@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Iterable
 
 from mpm.files import read_json, write_json
+from similarity.progress import Message
 
 
 def finished_cases(out, *patterns: str) -> list[dict]:
@@ -66,7 +67,7 @@ def finished_case(folder, config: dict) -> dict | None:
 def tell(progress, text: str | None) -> None:
     """Hand ``text`` to the ``progress`` callback as a message line (nothing without a callback or a text)."""
     if progress and text:
-        progress({"event": "message", "text": text})
+        progress(Message(text))
 
 
 class Study:

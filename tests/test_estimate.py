@@ -20,6 +20,7 @@ from mpm.store import Store
 from similarity import cma_stage
 from similarity import estimate as E
 from similarity.presets import PAPER_MODEL, setup_of
+from similarity.progress import GenerationDone
 from similarity.space import denormalize, e_rel
 
 SIM = "fake_forward:simulate"
@@ -114,7 +115,7 @@ def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch
     monkeypatch.setattr(cma_stage, "STALL_DRAWS", 3 * 7)
     shown = []
     ref = _stage(exps, Store(tmp_path / "ref"), 30,
-                 progress=lambda ev: shown.append(ev["generation"]) if ev["event"] == "generation" else None)
+                 progress=lambda ev: shown.append(ev.generation) if isinstance(ev, GenerationDone) else None)
     # the progress bar, the stage record (result.json) and the budget agree; CMA-ES iterations are fewer
     assert shown[-1] == ref.generations == 30 and ref.cma_iterations == len(ref.history) < 30
     draws = np.diff([0] + [h.drawn for h in ref.history])
@@ -131,7 +132,7 @@ def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch
     store = Store(tmp_path / "killed")
 
     def stop(event):
-        if event["event"] == "generation" and event["generation"] * 7 > ref.history[first].drawn:
+        if isinstance(event, GenerationDone) and event.generation * 7 > ref.history[first].drawn:
             raise _Interrupt
 
     with pytest.raises(_Interrupt):

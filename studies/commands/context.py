@@ -174,9 +174,11 @@ class Run:
     from_store: int = 0  # results served from the store (simulations or cached losses)
     started: float = field(default_factory=time.perf_counter)
 
-    def event(self, ev: dict) -> None:
-        if ev.get("event") == "simulation":
-            if ev.get("cached"):
+    def event(self, ev) -> None:
+        from similarity.progress import Simulation
+
+        if isinstance(ev, Simulation):
+            if ev.cached:
                 self.from_store += 1
             else:
                 self.simulated += 1

@@ -34,6 +34,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from mpm.ranges import check_density
     from similarity import estimate as E
+    from similarity.progress import Message
     from mpm.params import Material, Setup
     from studies.report import write_estimate_report
 
@@ -42,8 +43,8 @@ def run(args: argparse.Namespace) -> int:
     density = check_density(args.density, "--density")
     check_run_options(args)
     with open_run(args) as run:
-        run.progress({"event": "message", "text": f"ground truth: eta={truth.eta:g} Pa s^n, n={truth.n:g}, "
-                      f"sigma_y={truth.sigma_y:g} Pa; first setup {first} mm"})
+        run.progress(Message(f"ground truth: eta={truth.eta:g} Pa s^n, n={truth.n:g}, "
+                      f"sigma_y={truth.sigma_y:g} Pa; first setup {first} mm"))
         est, filmed = E.emulate_virheometry(truth, first, n_setups=2, preset=args.preset, seed=args.seed,
                                             density=density, forward=run.forward,
                                             generations=args.generations, progress=run.progress)

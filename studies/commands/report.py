@@ -46,7 +46,9 @@ def run(args: argparse.Namespace) -> int:
     read_result(folder)  # a folder without an estimate stops here
     check_posterior_options(args)
     curve = _read_rheometer(args.rheometer) if args.rheometer else None  # bad files stop here, before any work
-    progress = None if args.quiet else (lambda ev: print(ev["text"]) if ev.get("event") == "message" else None)
+    from similarity.progress import Message
+
+    progress = None if args.quiet else (lambda ev: print(ev.text) if isinstance(ev, Message) else None)
     check_engine()
     with Forward(Path(args.store) if args.store else folder / "store", workers=args.workers) as forward:
         analysis = analyse(folder, forward=forward, new_simulations=args.new_simulations,

@@ -46,6 +46,7 @@ import numpy as np
 from mpm.files import write_json
 from mpm.params import SETUP_RANGE_MM, Setup
 from similarity import information as I
+from similarity.progress import simulation_tick
 from studies.design_information import checks
 from studies.design_information.plots import plot_maps, plot_predicted
 from studies.design_information.records import (CriterionScores, InformationRecord, InformationSummary, MeasureScores,
@@ -291,7 +292,7 @@ def records(out) -> list[InformationRecord]:
 
 def _ticker(progress):
     """The store's per-simulation callback that reports to ``progress``; None without one."""
-    return (lambda req, res, cached: progress({"event": "simulation", "cached": cached})) if progress else None
+    return simulation_tick(progress)
 
 
 class InformationStudy(Study):
