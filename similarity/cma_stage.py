@@ -21,7 +21,7 @@ from mpm.forward import Forward, ForwardModel
 from mpm.params import Material
 from similarity.presets import setup_of
 from similarity.space import denormalize, from_search, normalize, to_search
-from similarity.progress import GenerationDone, Simulation, StageStarted
+from similarity.progress import GenerationDone, StageStarted, simulation_tick
 
 POPSIZE = 7  # 4 + floor(3 ln 3) for 3 parameters
 RESAMPLE = 3  # rounds of redrawing NaN candidates (failed simulations) within one generation
@@ -155,11 +155,8 @@ class Objective:
         return [self.forward.request(self.material(x), e, self.model) for e in self.experiments]
 
     def __call__(self, X) -> np.ndarray:
-        tick = None
-        if self.progress:
-            def tick(req, res, cached):
-                self.progress(Simulation(bool(cached)))
-        losses = self.forward.losses([self.material(x) for x in X], self.experiments, self.model, on_result=tick)
+        losses = self.forward.losses([self.material(x) for x in X], self.experiments, self.model,
+                                     on_result=simulation_tick(self.progress))
         return losses.mean(axis=1)
 
 

@@ -47,6 +47,7 @@ from poiseuille import hessian
 
 from .belief import PRIOR_PRECISION
 from .normals import loss_normals, perpendicularity, top_eigenvector
+from .progress import first_line
 from .space import EXTENT, candidate_setups
 
 CRITERIA = ("perpendicularity", "eig")  # Theta-based, no simulation; "information": rank_by_simulation
@@ -127,17 +128,16 @@ def _no_candidate(material) -> ValueError:
     return ValueError(f"no candidate setup makes {material} flow in Theta's plane-Poiseuille model")
 
 
-def unit_hessians(material, width_mm, height_mm, theta, *, with_normals: bool = False):
-    """H^ = A H A / tr(A H A) (k, 3, 3) of the plane-Poiseuille loss for setups, and their validity (P L > sigma_y);
-    ``with_normals``: also the loss normals (k, 3), the top eigenvectors of the same A H A (``variant="scaled"``)."""
+def unit_hessians(material, width_mm, height_mm, theta):
+    """(H^ = A H A / tr(A H A) (k, 3, 3) of the plane-Poiseuille loss for setups, their validity (P L > sigma_y),
+    their loss normals (k, 3): the top eigenvectors of the same A H A, ``variant="scaled"``)."""
     m = _material(material).as_array()
     P, L = theta.pl(m[0], m[1], m[2], np.asarray(width_mm, float), np.asarray(height_mm, float))
     valid = P * L > m[2]
     h = hessian(m[0], m[1], m[2], P, L) * EXTENT[:, None] * EXTENT[None, :]  # A H A, eqs. 29-42
     tr = np.trace(h, axis1=-2, axis2=-1)
     valid &= tr > 0
-    unit = h / np.where(valid, tr, 1.0)[..., None, None]
-    return (unit, valid, top_eigenvector(h)) if with_normals else (unit, valid)
+    return h / np.where(valid, tr, 1.0)[..., None, None], valid, top_eigenvector(h)
 
 
 def expected_information_gain(covariance, fisher) -> np.ndarray:
@@ -162,9 +162,9 @@ def information_scale(covariance, done_hessians) -> float:
 def _rank_eig(material, done, theta, covariance, scale) -> Ranking:
     wd = np.array([s.width_mm for s in done])
     hd = np.array([s.height_mm for s in done])
-    h_done, ok_done = unit_hessians(material, wd, hd, theta)
+    h_done, ok_done, q_done = unit_hessians(material, wd, hd, theta)
     notes = [no_flow_note(s) for s, ok in zip(done, ok_done) if not ok]
-    h_done = h_done[ok_done]  # a setup without flow adds no plane-Poiseuille information: left out
+    h_done, q_done = h_done[ok_done], q_done[ok_done]  # a setup without flow adds no information: left out
     if covariance is None:
         c = float(scale) if scale is not None else DEFAULT_INFORMATION_SCALE
         covariance = np.linalg.inv(PRIOR_PRECISION * np.eye(3) + c * h_done.sum(axis=0))
@@ -177,19 +177,18 @@ def _rank_eig(material, done, theta, covariance, scale) -> Ranking:
             try:
                 c = information_scale(covariance, h_done)
             except ValueError as exc:
-                notes.append(f"{str(exc).splitlines()[0]}: the default scale {DEFAULT_INFORMATION_SCALE:g} is used")
+                notes.append(f"{first_line(exc)}: the default scale {DEFAULT_INFORMATION_SCALE:g} is used")
         elif c is None:
             notes.append(f"no setup done has plane-Poiseuille flow to fit the information scale to: the default "
                          f"scale {DEFAULT_INFORMATION_SCALE:g} is used")
         c = DEFAULT_INFORMATION_SCALE if c is None else c
     width, height = candidate_setups()
-    h, valid, q = unit_hessians(material, width, height, theta, with_normals=True)
+    h, valid, q = unit_hessians(material, width, height, theta)
     eig = np.full(len(width), np.nan)
     eig[valid] = expected_information_gain(covariance, c * h[valid])
     valid &= np.isfinite(eig) & np.all(np.isfinite(q), axis=-1)
     if not np.any(valid):
         raise _no_candidate(material)
-    q_done, _ = done_normals(material, done, theta)
     return Ranking(material, done, width[valid], height[valid], eig[valid], q[valid], q_done, "eig", c * h[valid],
                    covariance, tuple(notes))
 

@@ -20,6 +20,7 @@ from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
 from similarity.cma_stage import WARM_START_SPACING, Generation, Stage, run_stage, warm_start  # noqa: F401
 from similarity.emulation import emulate, simulated_frames  # noqa: F401
 from similarity.presets import PRESETS, Preset, get_preset, setup_of  # noqa: F401
+from similarity.progress import Event, first_line
 from similarity.proposers import Perpendicularity
 from similarity.space import LOWER, UPPER, center, denormalize, e_rel, normalize
 
@@ -85,14 +86,13 @@ def propose_next_setup(material: Material, done: Sequence[Setup]) -> Setup | Non
     try:
         return Perpendicularity()(material, done)
     except ValueError as exc:
-        log.warning("next-setup proposal skipped: %s", str(exc).splitlines()[0])
+        log.warning("next-setup proposal skipped: %s", first_line(exc))
         return None
 
 
 def skipped_proposal(stage_index: int, exc: BaseException) -> str:
     """The one line an estimate keeps when the proposal after a stage failed."""
-    why = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-    return f"next-setup proposal after stage {stage_index} skipped: {why}"
+    return f"next-setup proposal after stage {stage_index} skipped: {first_line(exc)}"
 
 
 def _takes_stage(propose) -> bool:
@@ -113,7 +113,7 @@ def _forward(forward: Forward | None) -> tuple[Forward, bool]:
 
 
 def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward | None = None,
-             generations: int | None = None, progress: Callable[[dict], None] | None = None,
+             generations: int | None = None, progress: Callable[[Event], None] | None = None,
              n_setups: int | None = None, acquire: Callable[[Setup], object] | None = None,
              propose: Callable[[Material, list], Setup | None] | None = Perpendicularity(),
              start: Material | None = None) -> Estimate:

@@ -34,7 +34,7 @@ from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, Poste
                                           read_posterior)
 from similarity.run_folder import Run, load_run, read_result  # noqa: F401 (re-exported)
 from similarity.space import denormalize, normalize
-from similarity.progress import Message
+from similarity.progress import Message, first_line
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
 MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
@@ -339,14 +339,14 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                     for i in order]
     except ValueError as exc:
         next_eig = []
-        say(f"next setups by expected information gain skipped: {str(exc).splitlines()[0]}")
+        say(f"next setups by expected information gain skipped: {first_line(exc)}")
     try:
         best, sp = rank_setups(m_mean, run.setups).best()
         hit = np.array([], int) if eig is None else np.flatnonzero((eig.width_mm == best.width_mm)
                                                                     & (eig.height_mm == best.height_mm))
         next_perp = {"setup": str(best), "score": sp, "eig_nats": float(eig.score[hit[0]]) if hit.size else None}
     except ValueError as exc:
-        next_perp = {"error": str(exc).splitlines()[0]}
+        next_perp = {"error": first_line(exc)}
     say(f"next setup by simulated information ({SIMULATION_PRESET} preset's model)")
     try:
         info = rank_by_simulation(m_mean, run.setups, preset=SIMULATION_PRESET, forward=run.forward)

@@ -1,5 +1,6 @@
 """The progress events a long computation reports to its ``progress`` callback (estimation, studies, posteriors),
-as typed values: the command line's progress bars and counters dispatch on their type."""
+as typed values: the command line's progress bars and counters dispatch on their type; and ``first_line``, how an
+exception becomes one line for the user."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -49,6 +50,12 @@ class Sampling:
 
 
 Event = Message | Simulation | StageStarted | GenerationDone | Sampling
+
+
+def first_line(exc: BaseException) -> str:
+    """An exception as one line for the user: its message's first line, or its type's name."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def simulation_tick(progress):

@@ -18,7 +18,7 @@ import warnings
 import zipfile
 
 from studies.commands.context import report_data_losses
-from studies.report import first_line as _first_line
+from similarity.progress import first_line as _first_line
 
 # modules under studies.commands, in the order of ``virheo --help``; each defines register(subparsers)
 COMMANDS = ("demo", "design", "simulate", "check", "estimate", "study", "rheometer", "report", "theta", "figures")

@@ -8,6 +8,7 @@ from typing import Mapping
 import numpy as np
 
 from mpm.files import atomic_write, write_json  # noqa: F401 (write_json re-exported)
+from similarity.progress import first_line
 
 SHEAR_RATES = np.logspace(-2, 4, 200)  # 1/s, the range of the paper's flow-curve plots (Fig. 10)
 
@@ -127,12 +128,6 @@ def progress_bars(enabled: bool = True):
                 bars.console.print(event.text)
 
         yield callback
-
-
-def first_line(exc: BaseException) -> str:
-    """An exception as one line: its message's first line, or its type's name."""
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def write_estimate_report(out, est, experiments, *, frames, truth=None, extra: Mapping | None = None) -> dict:
