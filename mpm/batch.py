@@ -36,7 +36,7 @@ DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
 
 # Source files of this package that do not change what a simulation computes.
 _NOT_SIMULATION = {"store.py", "store_index.py", "batch.py", "forward.py", "datasets.py", "experiment.py", "loss.py",
-                   "shear.py", "ranges.py", "__init__.py"}
+                   "shear.py", "ranges.py", "laws.py", "__init__.py"}
 
 
 # -- requests --------------------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from similarity.space import denormalize
-from similarity.progress import Sampling
+from similarity.progress import Sampling, first_line
 
 QUANTILES = (0.05, 0.5, 0.95)
 
@@ -79,11 +79,69 @@ def check_backend(path) -> None:
                              "delete it to sample again") from None
 
 
-def _open_backend(path, name: str):
+def chunked_backend(path, name: str):
+    """emcee's in-memory backend, read from the HDF5 group ``name`` of ``path`` where a run left one and written
+    back there by its ``persist()`` at the end of each chunk of steps.  emcee's own HDF5 backend opens the file at
+    every step, which cost 14 times the sampler's own step on the emulated likelihood (bench/bench_posterior.py)."""
     import emcee
+    import h5py
+
+    class ChunkedBackend(emcee.backends.Backend):
+        def __init__(self):
+            super().__init__()
+            self.saved = 0  # steps already in the file
+
+        def reset(self, nwalkers, ndim):
+            super().reset(nwalkers, ndim)
+            self.saved = -1  # the file's group is stale: replaced at the next persist
+
+        def load(self) -> None:
+            with h5py.File(path, "r") as f:
+                if name not in f:
+                    return
+                g = f[name]
+                super().reset(int(g.attrs["nwalkers"]), int(g.attrs["ndim"]))
+                n = int(g.attrs["iteration"])
+                self.chain, self.log_prob = g["chain"][:n], g["log_prob"][:n]
+                self.accepted = g["accepted"][:]
+                self.random_state = (str(g.attrs["rng"]), g["rng_keys"][:], int(g.attrs["rng_pos"]),
+                                     int(g.attrs["rng_has_gauss"]), float(g.attrs["rng_gauss"]))
+                self.iteration = self.saved = n
+
+        def persist(self) -> None:
+            with h5py.File(path, "a") as f:
+                if self.saved < 0 and name in f:
+                    del f[name]
+                self.saved = max(self.saved, 0)
+                g = f.require_group(name)
+                nw, nd = self.nwalkers, self.ndim
+                if "chain" not in g:
+                    g.create_dataset("chain", (0, nw, nd), maxshape=(None, nw, nd), dtype=self.dtype, chunks=True)
+                    g.create_dataset("log_prob", (0, nw), maxshape=(None, nw), dtype=self.dtype, chunks=True)
+                new = slice(self.saved, self.iteration)
+                for key, values in (("chain", self.chain), ("log_prob", self.log_prob)):
+                    g[key].resize(self.iteration, axis=0)
+                    g[key][new] = values[new]
+                if "accepted" in g:
+                    del g["accepted"], g["rng_keys"]
+                g["accepted"] = self.accepted
+                kind, keys, pos, has_gauss, gauss = self.random_state
+                g["rng_keys"] = keys
+                g.attrs.update(nwalkers=nw, ndim=nd, iteration=self.iteration, rng=kind, rng_pos=pos,
+                               rng_has_gauss=has_gauss, rng_gauss=gauss)
+            self.saved = self.iteration
 
     check_backend(path)
-    return emcee.backends.HDFBackend(str(path), name=name)
+    backend = ChunkedBackend()
+    if Path(path).exists():
+        backend.load()
+    return backend
+
+
+def stored_chain(path, name: str = "mcmc") -> np.ndarray:
+    """The chain (steps, walkers, dims) that :func:`sample` keeps in the HDF5 group ``name`` of ``path``."""
+    backend = chunked_backend(path, name)
+    return backend.chain[: backend.iteration] if backend.initialized else np.zeros((0, 0, 0))
 
 
 def sample(log_prob: Callable[[np.ndarray], np.ndarray], x0, *, nwalkers: int = 32, seed: int = 0,
@@ -101,7 +159,10 @@ def sample(log_prob: Callable[[np.ndarray], np.ndarray], x0, *, nwalkers: int = 
     x0 = np.asarray(x0, float)
     ndim = x0.size
     t0 = time.perf_counter()
-    hdf = _open_backend(backend, backend_name) if backend is not None else None
+    try:
+        hdf = chunked_backend(backend, backend_name) if backend is not None else None
+    except (OSError, KeyError) as exc:
+        raise ValueError(f"{backend}: corrupt posterior backend ({first_line(exc)}); delete it to sample again") from None
     resume = False
     if hdf is not None:
         try:
@@ -147,6 +208,8 @@ def sample(log_prob: Callable[[np.ndarray], np.ndarray], x0, *, nwalkers: int = 
                 break
         steps = min(check_every, max_steps - it)
         sampler.run_mcmc(state, steps, progress=False)
+        if hdf is not None:
+            hdf.persist()
         state = None
     t = float(np.max(tau))
     burn = min(int(2 * t), sampler.iteration - 1)

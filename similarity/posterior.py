@@ -28,6 +28,7 @@ from scipy.stats import chi2
 
 from mpm.files import write_json
 from mpm.params import Material
+from similarity.evidence import LAWS, parse_laws, summarise
 from similarity.flow_band import flow_band
 from similarity.mcmc import Posterior, check_backend, sample
 from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, PosteriorStats, PosteriorSummary,  # noqa: F401
@@ -42,6 +43,8 @@ EDGE = 0.05  # the outer fraction of the box's width next to a face in which a s
 CHECK_ROUNDS = 4  # posterior checks per box: simulated draws join the training set while the emulator is optimistic
 CHECK_NATS = 1.0  # the most the emulator may promise above the simulator on the posterior's draws (mean, eq. 1)
 FOLDS = 5  # k of the k-fold cross-validation that measures the emulator's error
+TRAINING_FILE = "posterior_training.npz"
+LAW_NAMES = tuple(LAWS)  # the laws whose evidence a report computes by default
 REACH_NATS = float(0.5 * chi2.ppf(0.999, 3))  # 8.1: -log p (eq. 1) within which a 3-D Gaussian holds 99.9 % of its mass
 MIN_SCORED = 10  # the emulator's error is measured on at least this many of the lowest training losses
 
@@ -128,15 +131,16 @@ def within_reach(y, noise) -> np.ndarray:
     return (gap <= REACH_NATS) | (np.argsort(np.argsort(y)) < MIN_SCORED)
 
 
-def emulator_error(X, y, noise, split, seed: int = 0):
+def emulator_error(X, y, noise, split, seed: int = 0, kernel=None):
     """e_emul, the emulator's error where the posterior can lie: the RMSE of the k-fold cross-validated
     predictions (``FOLDS``, folds drawn by ``split``) of the training losses :func:`within_reach` of the best.
     Far from the optimum the loss is steep and rough and the emulator's error large; counting it there would
     flatten the likelihood near the optimum, where the emulator is accurate.
+    ``kernel``: the full fit's kernel, where each fold's hyperparameter optimisation starts (None: three starts).
     Returns a :class:`surrogate.emulator.Validation` (``n_test``: the losses scored)."""
     from surrogate.emulator import Validation, out_of_fold
 
-    predicted = out_of_fold(X, y, FOLDS, split, seed=seed)
+    predicted = out_of_fold(X, y, FOLDS, split, seed=seed, kernel=kernel)
     near = within_reach(y, noise)
     return Validation.of(predicted[near], np.asarray(y)[near], len(y))
 
@@ -167,6 +171,8 @@ class CheckedFit:
     noise: object
     posterior: Posterior
     check: PosteriorCheck | None
+    X: np.ndarray  # the training set the emulator was fitted on (normalised materials, mean losses)
+    y: np.ndarray
 
 
 def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, split, seed: int = 0, stage: int = 0,
@@ -190,8 +196,8 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
         largest_fold = -(-len(yf) // FOLDS)  # ceil: each fold's emulator trains on the rest
         if len(yf) - largest_fold < min_training(3):
             raise ValueError(too_few)
-        validation = emulator_error(Xf, yf, base_noise, split, seed=seed)
         emu = LossEmulator(seed=seed).fit(Xf, yf)
+        validation = emulator_error(Xf, yf, base_noise, split, seed=seed, kernel=emu.gp.kernel_)
         noise = base_noise.with_emulator(validation.rmse)
         if progress:
             progress(Message(f"emulator: {len(yf)} training losses, cross-validated RMSE "
@@ -203,7 +209,7 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
                       min_ess=min_ess, max_steps=max_steps, backend=backend, backend_name=f"mcmc-{key}",
                       progress=progress)
         if draws <= 0:
-            return CheckedFit(emu, validation, noise, post, None), X, y
+            return CheckedFit(emu, validation, noise, post, None, Xf, yf), X, y
         draw = np.random.default_rng([seed, stage, round_])
         pick = draw.choice(len(post.samples), size=min(draws, len(post.samples)), replace=False)
         X_chk = post.samples[pick]
@@ -215,7 +221,40 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
                       f"{check.failed} failed: {'trusted' if check.passed else 'retraining'}"))
         X, y = np.vstack([X, X_chk]), np.concatenate([y, y_chk])
         if check.passed or round_ == rounds:
-            return CheckedFit(emu, validation, noise, post, check), X, y
+            return CheckedFit(emu, validation, noise, post, check, Xf, yf), X, y
+
+
+def law_evidences(laws, noise, emu, samples, lo, hi, *, seed: int = 0):
+    """The evidence (:func:`similarity.evidence.law_evidence`) of each of ``laws`` on the emulated eq. (1) in the box
+    [lo, hi] (``samples``: the Herschel-Bulkley posterior's), and why the box must grow (None when it need not): a law's face outside the box (the emulator is
+    never extrapolated to it), or a law's posterior on its face reaching an inner face of the box.  Returns
+    (the evidences computed, the reason or None, each special law's posterior samples on its face)."""
+    from similarity.evidence import law_evidence
+
+    away = [law.name for law in laws if not law.on_face(lo, hi)]
+    if away:
+        return [], f"the emulator's box does not reach the face of {', '.join(away)}", []
+
+    def log_like(x):
+        return noise.log_likelihood(emu.predict(np.atleast_2d(x)))
+
+    out, cut, faces = [], [], []
+    for law in laws:
+        ev, face = law_evidence(log_like, law, lo, hi, samples=None if law.fixed else samples, seed=seed)
+        out.append(ev)
+        if law.fixed:
+            faces.append(face)
+            if reaches_a_face(face, log_like(face), lo, hi):
+                cut.append(law.name)
+    return out, (f"the posterior of {', '.join(cut)} on its face reaches an inner face of the emulator's box"
+                 if cut else None), faces
+
+
+def face_draws(faces, count: int, seed: int, round_: int) -> np.ndarray:
+    """``count`` draws of each special law's posterior samples on its face (normalised), to simulate."""
+    rng = np.random.default_rng([seed, 99, round_])
+    picks = [f[rng.choice(len(f), size=min(count, len(f)), replace=False)] for f in faces if len(f)]
+    return np.vstack(picks) if picks else np.zeros((0, 3))
 
 
 @dataclass
@@ -233,11 +272,12 @@ class Analysis:
 
 def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: float = 0.1,
             seed: int = 0, nwalkers: int = 32, min_ess: float = 1000.0, max_steps: int = 20000,
-            discretisation: bool = True, noise_count: str = NOISE_COUNT,
+            discretisation: bool = True, noise_count: str = NOISE_COUNT, laws=LAW_NAMES,
             progress: Callable[[dict], None] | None = None) -> Analysis:
-    """Noise scale, emulator, posterior, ellipsoids and ranked next setups of a run; writes
-    ``posterior.json``, ``posterior_samples.npy``, the resumable ``posterior.h5`` and the checks' draws
-    ``posterior_draws.npy`` into the folder.
+    """Noise scale, emulator, posterior, ellipsoids, ranked next setups and the evidence of the ``laws`` (names,
+    :mod:`similarity.evidence`; Herschel-Bulkley always) of a run; writes ``posterior.json``,
+    ``posterior_samples.npy``, the resumable ``posterior.h5`` and the checks' draws ``posterior_draws.npy`` into
+    the folder.  The box grows until it reaches every law's face and holds every law's posterior.
     ``forward``: the store and executor that simulate (default: the run's store, in this process)."""
     from similarity.design import SIMULATION_PRESET, rank_by_simulation, rank_setups
     from similarity.ellipsoid import alignment, ellipsoid
@@ -252,6 +292,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         if progress:
             progress(Message(text))
 
+    laws = parse_laws(",".join(laws))  # an unknown name stops here, before any work
     run = load_run(folder, forward=forward)
     check_backend(run.folder / "posterior.h5")  # before any simulation
     x_hat = normalize(run.estimate.as_array())
@@ -282,8 +323,10 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
             tmp.replace(draws_file)
         return mean_losses(run, X)
 
-    for attempt, half_width in enumerate(widths):
-        X_new = batches[attempt]
+    attempt, face_rounds, face_check, retry = 0, 0, None, False
+    while True:
+        half_width = widths[attempt]
+        X_new = np.zeros((0, 3)) if retry else batches[attempt]  # a refit after a failed laws' check adds no batch
         in_box = np.all(np.abs(stored - x_hat) <= half_width + 1e-12, axis=1)
         X_old = np.vstack([stored[in_box], x_hat[None]])
         # a re-run finds every batch of new simulations in the store: those are not archive, so the training
@@ -303,10 +346,35 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                     f"fifth out: raise --new-simulations")
         emu, validation, noise, post, check = fit.emulator, fit.validation, fit.noise, fit.posterior, fit.check
         cut = cut_fraction(post.samples, lo, hi)
-        if half_width >= 1.0 or not reaches_a_face(post.samples, post.log_prob, lo, hi):
+        evidences, faces, retry = None, [], False
+        if reaches_a_face(post.samples, post.log_prob, lo, hi):
+            why = (f"the posterior reaches an inner face of the emulator's box ({100 * cut:.1f} % of it lies "
+                   f"there)")
+        else:
+            evidences, why, faces = law_evidences(laws, noise, emu, post.samples, lo, hi, seed=seed)
+        if why is None and faces and new_simulations and face_rounds < CHECK_ROUNDS:
+            # the special laws' posteriors on their faces, checked against the simulator as the posterior's draws are
+            face_rounds += 1
+            X_chk = face_draws(faces, max(4, new_simulations // 4), seed, face_rounds)
+            y_chk = simulate_draws(X_chk)
+            face_check = posterior_check(noise, emu, X_chk, y_chk, rounds=face_rounds)
+            X_all, y_all = np.vstack([X_all, X_chk]), np.concatenate([y_all, y_chk])
+            say(f"laws' check: {len(y_chk)} draws on the special laws' faces simulated, the emulator is "
+                f"{face_check.optimism_nats:+.2f} nats optimistic on them (RMS {face_check.rms_nats:.2f}), "
+                f"{face_check.failed} failed: {'trusted' if face_check.passed else 'retraining'}")
+            if not face_check.passed:
+                retry = True
+                continue
+        if half_width >= 1.0 or why is None or attempt == len(widths) - 1:
             break
-        say(f"the posterior reaches an inner face of the emulator's box ({100 * cut:.1f} % of it lies there): "
-            f"growing it")
+        say(f"{why}: growing it")
+        attempt += 1
+    if evidences is None:
+        evidences, why, _ = law_evidences(laws, noise, emu, post.samples, lo, hi, seed=seed)
+    if why is not None:
+        say(f"warning: {why}, and the box may grow no further: the laws' evidence is cut by the box")
+    for e in evidences:
+        say(f"evidence of {e.law}: ln Z {e.log_z:.2f} ± {e.log_z_err:.2f} ({e.ess:.0f} effective draws)")
     if check is not None and not check.passed:
         say(f"warning: after {check.rounds} checks the emulator is still {check.optimism_nats:.1f} nats optimistic on "
             f"the posterior's draws ({check.failed} of {check.draws} simulations failed): the posterior is not trusted")
@@ -357,12 +425,50 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     summary = PosteriorSummary(
         estimate=run.estimate, estimate_normalised=x_hat.tolist(), setups=[str(s) for s in run.setups], noise=noise,
         emulator=EmulatorSummary(**validation.to_dict(), trust_region=[lo.tolist(), hi.tolist()],
-                                 half_width=half_width, cut_fraction=cut, roughness_std=emu.noise_std, check=check),
+                                 half_width=half_width, cut_fraction=cut, roughness_std=emu.noise_std, check=check,
+                                 laws_check=face_check),
         posterior=PosteriorStats.from_dict(post.summary()),
         truth=truth, truth_normalised=None if truth is None else normalize(truth.as_array()).tolist(),
         ellipsoid_posterior=ell, ellipsoid_laplace=laplace, normals=normals, flow_band=band, eig_grid=eig_grid,
-        next_setups_eig=next_eig, next_setup_perpendicular=next_perp, next_setup_information=next_info)
+        next_setups_eig=next_eig, next_setup_perpendicular=next_perp, next_setup_information=next_info,
+        evidence=summarise(evidences, lo, hi, next_setup=(next_info or {}).get("setup")
+                           or (next_eig[0]["setup"] if next_eig else None)) if evidences else None)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     np.save(run.folder / "posterior_log_prob.npy", post.log_prob)  # one log-posterior per sample
+    np.savez(run.folder / TRAINING_FILE, X=fit.X, y=fit.y, seed=seed)  # the emulator's training set: `virheo laws` refits it
     write_json(run.folder / "posterior.json", summary)
     return Analysis(run, post, noise, emu, summary, frames, box_log_posterior(noise, emu, lo, hi))
+
+
+def evidence_of_report(folder, laws=LAW_NAMES) -> "EvidenceSummary":
+    """The laws' evidence again from what ``virheo report`` left in ``folder``: posterior.json (noise, box),
+    posterior_samples.npy and the emulator's training set (refitted as the report fitted it).  Simulates nothing:
+    a law whose face lies outside the report's box is a ValueError (``virheo report --laws`` grows the box)."""
+    from pathlib import Path
+
+    from surrogate.emulator import LossEmulator
+
+    laws = parse_laws(",".join(laws))
+    folder = Path(folder)
+    summary = read_posterior(folder)
+    for name in ("posterior_samples.npy", TRAINING_FILE):
+        if not (folder / name).is_file():
+            raise ValueError(f"{folder}: no {name} (posterior samples and emulator); run `virheo report {folder}` first")
+    try:
+        samples = np.load(folder / "posterior_samples.npy")
+        with np.load(folder / TRAINING_FILE) as t:
+            X, y, seed = t["X"], t["y"], int(t["seed"])
+    except (OSError, ValueError, KeyError) as exc:
+        raise ValueError(f"{folder}: unreadable posterior files ({first_line(exc)}); run `virheo report {folder}` "
+                         "again") from None
+    if samples.ndim != 2 or samples.shape[1] != 3 or len(samples) == 0:
+        raise ValueError(f"{folder}: posterior_samples.npy holds no samples; run `virheo report {folder}` again")
+    lo, hi = (np.asarray(v, float) for v in summary.emulator.trust_region)
+    emu = LossEmulator(seed=seed).fit(X, y)
+    evidences, why, _ = law_evidences(laws, summary.noise, emu, samples, lo, hi, seed=seed)
+    if not evidences:
+        raise ValueError(f"{folder}: {why} (never extrapolated); run `virheo report {folder} --laws "
+                         f"{','.join(law.name for law in laws)}`, which grows it")
+    nxt = (summary.next_setup_information or {}).get("setup") or (
+        summary.next_setups_eig[0]["setup"] if summary.next_setups_eig else None)
+    return summarise(evidences, lo, hi, next_setup=nxt)

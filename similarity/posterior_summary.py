@@ -15,6 +15,7 @@ import numpy as np
 from mpm.files import JsonRecord
 from mpm.params import Material
 from similarity.ellipsoid import Ellipsoid
+from similarity.evidence import EvidenceSummary
 from similarity.flow_band import band_width
 from similarity.likelihood import NoiseScale
 
@@ -75,9 +76,10 @@ class EmulatorSummary(JsonRecord):
     cut_fraction: float | None = None  # posterior fraction at an inner face of the box (None: older files)
     roughness_std: float
     check: PosteriorCheck | None = None  # the posterior checked on simulated draws (None: no new simulations, older files)
+    laws_check: PosteriorCheck | None = None  # the same on the special laws' posteriors on their faces (None: none)
 
-    OMIT_IF_NONE = ("check",)
-    READERS = {"check": PosteriorCheck.from_dict}
+    OMIT_IF_NONE = ("check", "laws_check")
+    READERS = {"check": PosteriorCheck.from_dict, "laws_check": PosteriorCheck.from_dict}
 
 
 @dataclass(kw_only=True)
@@ -103,11 +105,14 @@ class PosteriorSummary(JsonRecord):
     # or {"error"}; None in files written before it
     next_setup_information: dict | None = None
     rheometer_band_coverage: float | None = None  # set by the HTML report when given a rheometer curve
+    evidence: EvidenceSummary | None = None  # the laws' evidences and verdicts; None in files written before them
 
-    OMIT_IF_NONE = ("truth", "truth_normalised", "eig_grid", "rheometer_band_coverage", "next_setup_information")
+    OMIT_IF_NONE = ("truth", "truth_normalised", "eig_grid", "rheometer_band_coverage", "next_setup_information",
+                    "evidence")
     READERS = {"estimate": _material, "truth": _material, "noise": NoiseScale.from_dict,
                "emulator": EmulatorSummary.from_dict, "posterior": PosteriorStats.from_dict,
-               "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict}
+               "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict,
+               "evidence": EvidenceSummary.from_dict}
 
     def band_width(self, shear_rate: float) -> float:
         """Width of the 90 % flow-curve band at ``shear_rate`` [1/s] (:func:`similarity.flow_band.band_width`)."""

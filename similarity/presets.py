@@ -72,6 +72,10 @@ PRESETS = {p.name: p for p in (
            finish=FOOTAGE_1P_MODEL,
            purpose="real footage, one particle per axis: 3 mm cells on sticking walls, then 6 generations at the "
                    "validated 1.5 mm cells with walls slipping by 1 mm (biased on thin films; cheaper)"),
+    Preset("survey", generations=12, cell_mm=2.5, ppc=2, sigma0=0.2, search_space="log-eta",
+           purpose="real or emulated footage in minutes: CMA-ES on log(eta) at 2.5 mm cells with two particles per "
+                   "axis, sticking walls, no finishing stage (the laws' verdicts on the shared footage and their "
+                   "calibration, docs/uncertainty.md)"),
     Preset("paper", generations=100, cell_mm=PAPER_MODEL.cell_mm, ppc=PAPER_MODEL.ppc,
            purpose="publication: the paper's budget and discretisation (1.26 mm, 2 particles per cell per axis)"),
 )}

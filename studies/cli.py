@@ -21,7 +21,7 @@ from studies.commands.context import report_data_losses
 from similarity.progress import first_line as _first_line
 
 # modules under studies.commands, in the order of ``virheo --help``; each defines register(subparsers)
-COMMANDS = ("demo", "design", "simulate", "check", "estimate", "study", "rheometer", "report", "theta", "figures")
+COMMANDS = ("demo", "design", "simulate", "check", "estimate", "study", "rheometer", "report", "laws", "theta", "figures")
 
 # a value such as "-1,0.5,3" or "-1e3" after an option is the option's value, not another option
 _NEGATIVE_VALUE = re.compile(r"^-\.?\d[\d.,eExX+-]*$")

@@ -170,39 +170,73 @@ def log_stress_rms(material: Material, curve: FlowCurve, lo: float = RELIABLE_RA
 
 @dataclass(frozen=True)
 class HerschelBulkleyFit:
+    """A least-squares fit of eq. 1 (or one of its special cases, ``law``: mpm.laws.LAWS) in log10 stress."""
+
     material: Material
     rms_log10: float
     n_points: int
     lo: float
     hi: float
+    law: str = "herschel-bulkley"
+    parameters: int = 3  # fitted
+
+    @property
+    def aic(self) -> float:
+        """Akaike's criterion of the Gaussian least-squares fit: N ln(RSS / N) + 2 k."""
+        return self.n_points * np.log(max(self.rms_log10, 1e-300) ** 2) + 2 * self.parameters
+
+    @property
+    def bic(self) -> float:
+        """Schwarz's criterion: N ln(RSS / N) + k ln N."""
+        return self.n_points * np.log(max(self.rms_log10, 1e-300) ** 2) + self.parameters * np.log(self.n_points)
 
 
-def fit_herschel_bulkley(curve: FlowCurve, lo: float = RELIABLE_RANGE[0], hi: float = RELIABLE_RANGE[1]) -> HerschelBulkleyFit:
-    """Least-squares Herschel-Bulkley fit in log10 stress over lo <= rate <= hi (scipy least_squares).
+def fit_herschel_bulkley(curve: FlowCurve, lo: float = RELIABLE_RANGE[0], hi: float = RELIABLE_RANGE[1],
+                         law: str = "herschel-bulkley") -> HerschelBulkleyFit:
+    """Least-squares fit of eq. 1 in log10 stress over lo <= rate <= hi (scipy least_squares), with the parameters
+    that ``law`` fixes (mpm.laws.LAWS: bingham n = 1, power-law sigma_y = 0, newtonian both) held.
 
     Unknowns (log10 eta, n, sigma_y) with bounds eta 1e-8..1e6 Pa s^n, n 0.05..2, 0 <= sigma_y <= the
     smallest stress in the window; several starts (no, half and most of the lowest stress as yield
     stress), the best is kept.
     """
+    from mpm.laws import LAWS
+
+    if law not in LAWS:
+        raise ValueError(f"unknown law '{law}': choose from {', '.join(LAWS)}")
     mask = curve.window(lo, hi)
     rate, stress = curve.shear_rate[mask], curve.shear_stress[mask]
     if len(rate) < 3:
         raise ValueError(f"{curve.name}: only {len(rate)} point(s) between {lo:g} and {hi:g} 1/s; need 3 for a fit")
     s_min = float(stress.min())
     target = np.log10(stress)
+    held = {("eta", "n", "sigma_y").index(k): v for k, v in LAWS[law].items()}
+    free = [i for i in range(3) if i not in held]
+
+    def full(x):
+        v = np.empty(3)
+        v[free] = x
+        for i, val in held.items():
+            v[i] = val
+        return v
 
     def residual(x):
-        return np.log10(Material(10.0 ** x[0], x[1], x[2]).stress(rate)) - target
+        v = full(x)
+        return np.log10(Material(10.0 ** v[0], v[1], v[2]).stress(rate)) - target
 
+    lower, upper, scale = np.array([-8.0, 0.05, 0.0]), np.array([6.0, 2.0, s_min]), np.array([1.0, 0.1, max(s_min, 1e-3)])
     best = None
-    for frac in (0.0, 0.5, 0.9):
+    for frac in ((0.0,) if 2 in held else (0.0, 0.5, 0.9)):
         sig0 = frac * s_min
         excess = np.maximum(stress - sig0, 1e-12 * s_min)
         slope, intercept = np.polyfit(np.log10(rate), np.log10(excess), 1)
-        x0 = [float(np.clip(intercept, -7.9, 5.9)), float(np.clip(slope, 0.06, 1.99)), sig0]
-        res = least_squares(residual, x0, bounds=([-8.0, 0.05, 0.0], [6.0, 2.0, s_min]), x_scale=[1.0, 0.1, max(s_min, 1e-3)],
+        if 1 in held:  # the slope is held: the intercept at that slope
+            intercept = float(np.mean(np.log10(excess) - held[1] * np.log10(rate)))
+        x0 = np.array([float(np.clip(intercept, -7.9, 5.9)), float(np.clip(slope, 0.06, 1.99)), sig0])[free]
+        res = least_squares(residual, x0, bounds=(lower[free], upper[free]), x_scale=scale[free],
                             xtol=1e-12, ftol=1e-12, gtol=1e-12)
         if best is None or res.cost < best.cost:
             best = res
-    m = Material(float(10.0 ** best.x[0]), float(best.x[1]), float(best.x[2]))
-    return HerschelBulkleyFit(m, log_stress_rms(m, curve, lo, hi), int(len(rate)), lo, hi)
+    v = full(best.x)
+    m = Material(float(10.0 ** v[0]), float(v[1]), float(v[2]))
+    return HerschelBulkleyFit(m, log_stress_rms(m, curve, lo, hi), int(len(rate)), lo, hi, law, len(free))

@@ -173,7 +173,7 @@ _KILLED = textwrap.dedent("""
     calls = [0]
     def log_prob(x):
         calls[0] += 1
-        if calls[0] == 201:
+        if calls[0] == 301:  # about step 150: the first chunk of 100 steps is saved
             os.kill(os.getpid(), signal.SIGKILL)
         return -0.5 * np.sum(((x - 0.5) / 0.05) ** 2, axis=1)
     sample(log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=300, check_every=100,
@@ -189,17 +189,17 @@ def test_killed_run_resumes_from_its_backend(tmp_path):
     path = tmp_path / "chain.h5"
     proc = subprocess.run([sys.executable, "-c", _KILLED.format(root=str(ROOT), path=str(path))], timeout=120)
     assert proc.returncode == -9
-    import emcee
+    from similarity.mcmc import stored_chain
 
-    done = emcee.backends.HDFBackend(str(path), read_only=True).iteration
-    assert 50 <= done < 300  # killed mid-run (about step 100), finished steps kept
+    done = len(stored_chain(path))
+    assert done == 100  # killed mid-run (about step 150), the finished chunk kept
     resumed = sample(_log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=300, check_every=100,
                      backend=path)
     assert resumed.iterations == 300
     fresh = sample(_log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=300, check_every=100,
                    backend=tmp_path / "fresh.h5")
-    chain_a = emcee.backends.HDFBackend(str(path), read_only=True).get_chain()
-    chain_b = emcee.backends.HDFBackend(str(tmp_path / "fresh.h5"), read_only=True).get_chain()
+    chain_a, chain_b = stored_chain(path), stored_chain(tmp_path / "fresh.h5")
+    assert chain_a.shape == (300, 16, 3)
     assert np.array_equal(chain_a, chain_b)  # the resumed chain is the uninterrupted one
     assert fresh.iterations == 300
     for post in (resumed, fresh):  # each kept sample carries the log-posterior emcee computed for it

@@ -145,3 +145,58 @@ def test_run_without_estimate_and_bad_rheometer_file(tmp_path, capsys):
     assert "rheometer export" in err and len(err.splitlines()) == 1
     assert main(["design", "--criterion", "eig", "--posterior", str(empty)]) == 2
     assert "posterior.json" in capsys.readouterr().err
+
+
+def test_the_laws_evidence_in_posterior_json_terminal_and_page(reported):
+    """The report grows its box to every law's face, checks the special laws' posteriors against the simulator and
+    gives each law a finite evidence with a small Monte Carlo error; the verdicts are printed and on the page."""
+    from similarity.evidence import LAWS
+    from similarity.posterior_summary import read_posterior
+
+    run, proc = reported
+    s = read_posterior(run)
+    ev = s.evidence
+    assert [e.law for e in ev.laws] == list(LAWS)
+    assert sum(ev.probabilities.values()) == pytest.approx(1.0)
+    lo, hi = (np.asarray(v) for v in ev.trust_region)
+    assert np.allclose([lo, hi], s.emulator.trust_region)
+    for law in LAWS.values():
+        assert law.on_face(lo, hi), law.name
+    for e in ev.laws:
+        assert np.isfinite(e.log_z) and 0 < e.log_z_err < 0.3 and e.ess > 100, e
+    assert s.emulator.laws_check is not None and s.emulator.laws_check.draws > 0
+    assert [v.question for v in ev.verdicts] == ["yield stress", "shear thinning"]
+    for v in ev.verdicts:
+        assert v.text in proc.stdout
+        assert v.log_bf == pytest.approx(ev.of("herschel-bulkley").log_z - ev.of(
+            "power-law" if v.question == "yield stress" else "bingham").log_z)
+    page = (run / "report" / "index.html").read_text()
+    assert "Which law" in page and ev.verdicts[0].text.split("(")[0].strip() in page
+
+
+def test_virheo_laws_gives_the_reports_evidence_again(reported, capsys):
+    run, _ = reported
+    assert main(["laws", str(run), "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    stored = json.loads((run / "posterior.json").read_text())["evidence"]
+    assert [e["log_z"] for e in again["laws"]] == pytest.approx([e["log_z"] for e in stored["laws"]], abs=1e-9)
+    assert main(["laws", str(run), "--laws", "newtonian"]) == 0
+    out = capsys.readouterr().out
+    assert "newtonian" in out and "bingham" not in out
+
+
+def test_laws_bad_input_is_one_line_exit_2(reported, tmp_path):
+    run, _ = reported
+    for argv in (["laws", str(run), "--laws", "bingham,casson"], ["report", str(run), "--laws", "casson"]):
+        proc = _cli(*argv)
+        assert proc.returncode == 2 and "unknown law 'casson'" in proc.stderr, proc.stderr
+        assert len(proc.stderr.strip().splitlines()) == 1
+    copy = tmp_path / "run"
+    copy.mkdir()
+    shutil.copy(run / "result.json", copy)
+    shutil.copy(run / "posterior.json", copy)
+    proc = _cli("laws", str(copy))
+    assert proc.returncode == 2 and "no posterior_samples.npy" in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
+    proc = _cli("laws", str(tmp_path / "nowhere"))
+    assert proc.returncode == 2 and "no posterior.json" in proc.stderr

@@ -135,3 +135,31 @@ def test_cli_json(shared_data, capsys):
     fit = data["fit"]
     assert fit["n_points"] == 11 and fit["rms_log10_stress"] < 0.01
     assert Material(fit["eta"], fit["n"], fit["sigma_y"]).stress(10.0) == pytest.approx(data["shear_stress_pa"][10], rel=0.02)
+
+
+@pytest.mark.parametrize("truth, law", [(Material(0.8, 1.0, 4.0), "bingham"), (Material(3.0, 0.45, 0.0), "power-law"),
+                                        (Material(0.2, 1.0, 0.0), "newtonian"), (Material(2.0, 0.5, 3.0), "herschel-bulkley")])
+def test_special_laws_fit_and_information_criteria(tmp_path, truth, law):
+    """A curve made by one law (1 % multiplicative noise): the law's own fit recovers it, the laws without its
+    parameters miss, and BIC prefers the true law or a law that contains it within its penalty."""
+    from mpm.laws import LAWS
+
+    rates = np.geomspace(0.1, 1000, 21)
+    noise = np.exp(0.01 * np.random.default_rng(3).standard_normal(len(rates)))
+    curve = read_flow_curve(write_export(tmp_path / "x.csv", truth, rates, noise))
+    fits = {name: fit_herschel_bulkley(curve, law=name) for name in LAWS}
+    own = fits[law]
+    assert own.parameters == 3 - len(LAWS[law]) and own.rms_log10 < 0.01
+    for k, v in LAWS[law].items():
+        assert getattr(own.material, k) == v
+    assert own.material.stress(10.0) == pytest.approx(truth.stress(10.0), rel=0.02)
+    for name, f in fits.items():
+        contains = all(LAWS[name].get(k) == v for k, v in LAWS[name].items() if k in LAWS[law]) and \
+            set(LAWS[name]) <= set(LAWS[law])
+        if not contains:
+            assert f.rms_log10 > 3 * own.rms_log10 and f.bic > own.bic + 10, name
+        assert f.aic == pytest.approx(f.n_points * np.log(f.rms_log10**2) + 2 * f.parameters)
+    best = min(fits.values(), key=lambda f: f.bic)
+    assert best.law == law or set(LAWS[best.law]) <= set(LAWS[law])
+    with pytest.raises(ValueError, match="unknown law 'casson'"):
+        fit_herschel_bulkley(curve, law="casson")

@@ -4,7 +4,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
+from similarity.evidence import LAWS
 from studies.commands.context import add_posterior_options, check_engine, check_posterior_options, seed
+
+LAW_NAMES = tuple(LAWS)
 
 
 def register(subparsers) -> None:
@@ -24,6 +29,9 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
     p.add_argument("--no-discretisation", action="store_true",
                    help="skip the half-cell simulation of the estimate that measures the discretisation error")
+    p.add_argument("--laws", default=",".join(LAW_NAMES), metavar="LIST",
+                   help="laws whose evidence is computed, comma separated (default all: "
+                        f"{', '.join(LAW_NAMES)}; herschel-bulkley always)")
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.set_defaults(func=run)
 
@@ -43,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
     from studies.html_report import write_report
 
     folder = Path(args.run)
+    from similarity.evidence import parse_laws
+
+    laws = [law.name for law in parse_laws(args.laws)]  # an unknown law stops here
     read_result(folder)  # a folder without an estimate stops here
     check_posterior_options(args)
     curve = _read_rheometer(args.rheometer) if args.rheometer else None  # bad files stop here, before any work
@@ -54,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
         analysis = analyse(folder, forward=forward, new_simulations=args.new_simulations,
                            half_width=args.half_width, seed=args.seed, min_ess=args.min_ess, max_steps=args.max_steps,
                            discretisation=not args.no_discretisation, noise_count=args.noise_count,
-                           progress=progress)
+                           laws=laws, progress=progress)
     page = write_report(Path(args.out) if args.out else folder / "report", analysis, rheometer=curve)
     summary = analysis.summary
     post = summary.posterior
@@ -83,5 +94,19 @@ def run(args: argparse.Namespace) -> int:
         f"{summary.band_width(r):.2f} at {r:g}" for r in (1.0, 10.0, 100.0)) + " 1/s")
     if summary.rheometer_band_coverage is not None:
         print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * summary.rheometer_band_coverage:.0f} %")
+    print_verdicts(summary.evidence)
     print(f"report: {page}")
     return 0
+
+
+def print_verdicts(evidence) -> None:
+    """The laws' verdicts and log Bayes factors against Herschel-Bulkley, one line each."""
+    if evidence is None:
+        print("laws: no evidence computed")
+        return
+    for v in evidence.verdicts:
+        print(v.text)
+    ref = evidence.of("herschel-bulkley")
+    print("laws, ln BF against Herschel-Bulkley (probability at equal prior odds): " + ", ".join(
+        f"{e.law} {e.log_z - ref.log_z:+.1f} ± {np.hypot(e.log_z_err, ref.log_z_err):.1f} "
+        f"({evidence.probabilities[e.law]:.2f})" for e in evidence.laws if e.law != ref.law))

@@ -28,6 +28,7 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from mpm.params import Material
+    from mpm.laws import LAWS
     from surrogate.rheometer import fit_herschel_bulkley, log_stress_rms, read_flow_curve
 
     if not (0 < args.lo < args.hi):
@@ -35,6 +36,7 @@ def run(args) -> int:
     other = Material.parse(args.material) if args.material else None
     curve = read_flow_curve(args.file)
     fit = fit_herschel_bulkley(curve, args.lo, args.hi)
+    laws = [fit] + [fit_herschel_bulkley(curve, args.lo, args.hi, law) for law in LAWS if law != fit.law]
     m = fit.material
     model = m.stress(curve.shear_rate)
     other_rms = log_stress_rms(other, curve, args.lo, args.hi) if other else None
@@ -48,6 +50,8 @@ def run(args) -> int:
             "viscosity_pa_s": curve.viscosity.tolist(),
             "temperature_c": np.round(curve.temperature_c, 3).tolist(),
             "fit": {"range_per_s": [fit.lo, fit.hi], "n_points": fit.n_points, **m.to_dict(), "rms_log10_stress": fit.rms_log10},
+            "laws": [{"law": f.law, "parameters": f.parameters, **f.material.to_dict(), "rms_log10_stress": f.rms_log10,
+                      "aic": f.aic, "bic": f.bic} for f in laws],
             "material": None if other is None else {**other.to_dict(), "rms_log10_stress": other_rms},
         }, indent=1))
         return 0
@@ -61,6 +65,12 @@ def run(args) -> int:
               f"{curve.viscosity[k]:17.5g} {model[k]:12.5g} {mark}")
     print(f"Herschel-Bulkley fit over {fit.lo:g}-{fit.hi:g} 1/s (* rows, {fit.n_points} points): "
           f"eta={m.eta:.4g} Pa s^n, n={m.n:.4g}, sigma_y={m.sigma_y:.4g} Pa; RMS log10 stress error {fit.rms_log10:.4f}")
+    best_aic, best_bic = min(f.aic for f in laws), min(f.bic for f in laws)
+    print("eq. 1 and its special cases over the same points (AIC, BIC: lower is better; difference to the best):")
+    for f in laws:
+        print(f"  {f.law:17s} eta={f.material.eta:<10.4g} n={f.material.n:<7.4g} sigma_y={f.material.sigma_y:<8.4g} "
+              f"RMS {f.rms_log10:.4f}  AIC {f.aic:8.1f} ({f.aic - best_aic:+6.1f})  BIC {f.bic:8.1f} "
+              f"({f.bic - best_bic:+6.1f})")
     if other is not None:
         print(f"given material eta={other.eta:g} Pa s^n, n={other.n:g}, sigma_y={other.sigma_y:g} Pa: "
               f"RMS log10 stress error {other_rms:.4f} over {fit.lo:g}-{fit.hi:g} 1/s")

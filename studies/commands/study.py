@@ -8,7 +8,7 @@ from studies.commands.context import (add_command_group, add_preset_option, add_
 
 
 def register(subparsers) -> None:
-    sub = add_command_group(subparsers, "study", help="long studies (emulation: section 7.1; landscapes; calibration of the posterior; second-setup design; does the design pay off)",
+    sub = add_command_group(subparsers, "study", help="long studies (emulation: section 7.1; landscapes; calibration of the posterior; second-setup design; does the design pay off; the laws' verdicts)",
                             description="Long-running studies; each resumes from its simulation store.",
                             dest="study", metavar="STUDY")
     e = sub.add_parser("emulation", help="one setup vs two setups on emulated footage (section 7.1, Fig. 10)",
@@ -21,12 +21,13 @@ def register(subparsers) -> None:
     e.add_argument("--seed", type=seed, default=0, help="seed of the materials, setups and CMA-ES (default 0)")
     add_run_options(e, default_out="./virheo-emulation")
     e.set_defaults(func=run_emulation)
-    from studies.commands import calibration, design_information, design_study, landscapes
+    from studies.commands import calibration, design_information, design_study, landscapes, law_calibration
 
     landscapes.register(sub)
     calibration.register(sub)
     design_study.register(sub)
     design_information.register(sub)
+    law_calibration.register(sub)
 
 
 def run_emulation(args: argparse.Namespace) -> int:

@@ -1,0 +1,37 @@
+"""``virheo laws RUN``: which law the footage supports (Herschel-Bulkley, Bingham, power law, Newtonian), from a
+reported run."""
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def register(subparsers) -> None:
+    from similarity.posterior import LAW_NAMES
+
+    p = subparsers.add_parser(
+        "laws", help="does the material have a yield stress, is it shear thinning: the laws' evidence of a reported run",
+        description="For a folder `virheo report` has written: the evidence of Herschel-Bulkley and of its special "
+        "cases Bingham (n = 1), power law (sigma_y = 0) and Newtonian, on the report's likelihood and emulator, "
+        "their log Bayes factors with Monte Carlo errors and the verdicts in words (Jeffreys' scale; resolved from "
+        "|ln BF| = ln 10). Simulates nothing; `virheo report` computes the same and grows its box to every law's face.",
+    )
+    p.add_argument("run", metavar="RUN", help="run folder holding posterior.json and the posterior's samples")
+    p.add_argument("--laws", default=",".join(LAW_NAMES), metavar="LIST",
+                   help=f"laws, comma separated (default all: {', '.join(LAW_NAMES)}; herschel-bulkley always)")
+    p.add_argument("--json", action="store_true", help="print the evidence as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from similarity.evidence import parse_laws
+    from similarity.posterior import evidence_of_report
+    from studies.commands.report import print_verdicts
+
+    laws = [law.name for law in parse_laws(args.laws)]  # an unknown law stops here
+    evidence = evidence_of_report(args.run, laws)
+    if args.json:
+        print(json.dumps(evidence.to_dict(), indent=1))
+    else:
+        print_verdicts(evidence)
+    return 0

@@ -1,0 +1,110 @@
+"""The laws' evidence (similarity/evidence.py) against closed forms, and the verdicts' wording at the thresholds."""
+import numpy as np
+import pytest
+from scipy.stats import norm, truncnorm
+
+from similarity.evidence import (LAWS, N_ONE, QUESTIONS, RESOLVED, SIGMA_Y_ZERO, law_evidence, parse_laws, strength,
+                                 summarise, verdict)
+
+
+def gaussian(mu, sd):
+    mu, sd = np.asarray(mu, float), np.asarray(sd, float)
+    return lambda x: -0.5 * np.sum(((np.atleast_2d(x) - mu) / sd) ** 2, axis=1)
+
+
+def box_log_z(mu, sd, lo, hi):
+    """ln of the integral of exp(-|x - mu|^2 / (2 sd^2)) over the box [lo, hi]."""
+    return float(np.sum(np.log(sd * np.sqrt(2 * np.pi) * (norm.cdf((hi - mu) / sd) - norm.cdf((lo - mu) / sd)))))
+
+
+def test_face_values_are_the_special_laws():
+    from similarity.space import denormalize
+
+    assert denormalize([0.3, N_ONE, SIGMA_Y_ZERO])[1:] == pytest.approx([1.0, 0.0])
+    assert LAWS["newtonian"].free == (0,) and LAWS["bingham"].free == (0, 2) and LAWS["power-law"].free == (0, 1)
+
+
+@pytest.mark.parametrize("mu, sd", [([0.31, 0.97, 0.02], [0.004, 0.03, 0.015]),  # cut by two faces of the space
+                                    ([0.5, 0.5, 0.5], [0.05, 0.1, 0.08])])  # inside
+def test_gaussian_in_a_box_all_four_laws(mu, sd):
+    mu, sd = np.array(mu), np.array(sd)
+    lo, hi = np.clip(mu - 6 * sd, 0, 1), np.clip(mu + 6 * sd, 0, 1)
+    lo[1], hi[2] = min(lo[1], N_ONE), hi[2]
+    hi[1], lo[2] = N_ONE, SIGMA_Y_ZERO  # the box reaches the n = 1 and sigma_y = 0 faces
+    ll = gaussian(mu, sd)
+    a, b = (lo - mu) / sd, (hi - mu) / sd
+    samples = truncnorm.rvs(a, b, loc=mu, scale=sd, size=(4000, 3), random_state=1)
+    for law in LAWS.values():
+        ev, _ = law_evidence(ll, law, lo, hi, samples=samples if not law.fixed else None, seed=3)
+        free = list(law.free)
+        exact = box_log_z(mu[free], sd[free], lo[free], hi[free])
+        exact += sum(-0.5 * ((v - mu[i]) / sd[i]) ** 2 for i, v in law.fixed)
+        assert ev.log_z_err < 0.05, law.name
+        assert abs(ev.log_z - exact) < 4 * ev.log_z_err + 1e-3, (law.name, ev.log_z, exact, ev.log_z_err)
+
+
+def test_linear_sub_model_closed_form():
+    """y = A theta + noise; the power law's face (sigma_y coordinate at 0) is a linear sub-model.  Both evidences
+    are Gaussian integrals: the general one cut by the face theta_2 >= 0, the sub-model's whole."""
+    rng = np.random.default_rng(7)
+    t = np.linspace(0, 1, 40)
+    A = np.column_stack([np.ones_like(t), t, t**2])
+    truth = np.array([0.4, 0.6, 0.0])
+    s = 0.05
+    y = A @ truth + s * rng.standard_normal(len(t))
+
+    def ll(x):
+        r = y[None] - np.atleast_2d(x) @ A.T
+        return -0.5 * np.sum(r * r, axis=1) / s**2
+
+    H = A.T @ A / s**2
+    theta = np.linalg.solve(A.T @ A, A.T @ y)
+    cov = np.linalg.inv(H)
+    exact_general = (ll(theta)[0] + 1.5 * np.log(2 * np.pi) - 0.5 * np.linalg.slogdet(H)[1]
+                     + norm.logcdf(theta[2] / np.sqrt(cov[2, 2])))
+    Hf = H[:2, :2]
+    theta_f = np.linalg.solve(A[:, :2].T @ A[:, :2], A[:, :2].T @ y)
+    exact_special = ll(np.r_[theta_f, 0.0])[0] + np.log(2 * np.pi) - 0.5 * np.linalg.slogdet(Hf)[1]
+    lo, hi = np.zeros(3), np.ones(3)
+    assert SIGMA_Y_ZERO == 0.0
+    draws = rng.multivariate_normal(theta, cov, 20000)
+    general, _ = law_evidence(ll, LAWS["herschel-bulkley"], lo, hi, seed=1, samples=draws[draws[:, 2] >= 0][:4000])
+    special, _ = law_evidence(ll, LAWS["power-law"], lo, hi, seed=2)
+    for ev, exact in ((general, exact_general), (special, exact_special)):
+        assert abs(ev.log_z - exact) < 4 * ev.log_z_err + 1e-3, (ev.law, ev.log_z, exact, ev.log_z_err)
+    # the data were made on the face: the sub-model wins (Occam), and the verdict says sigma_y = 0 or not resolved
+    summary = summarise([general, special], lo, hi)
+    assert summary.verdicts[0].log_bf == pytest.approx(exact_general - exact_special, abs=0.1)
+    assert summary.probabilities["power-law"] > summary.probabilities["herschel-bulkley"]
+
+
+def test_the_box_must_reach_the_face():
+    lo, hi = np.full(3, 0.3), np.full(3, 0.7)
+    with pytest.raises(ValueError, match="does not reach the bingham face"):
+        law_evidence(gaussian([0.5] * 3, [0.1] * 3), LAWS["bingham"], lo, hi)
+
+
+def test_jeffreys_grades_at_their_thresholds():
+    assert strength(np.log(100.0)) == "decisive" and strength(np.log(100.0) - 1e-9) == "very strong"
+    assert strength(-np.log(10.0**1.5)) == "very strong" and strength(np.log(10.0**1.5) - 1e-9) == "strong"
+    assert strength(RESOLVED) == "strong" and strength(RESOLVED - 1e-9) == "substantial"
+    assert strength(np.log(10.0**0.5) - 1e-9) == "barely worth mentioning" and strength(0.0) == "barely worth mentioning"
+
+
+def test_verdict_wording_at_the_thresholds():
+    yield_stress = QUESTIONS[0]
+    v = verdict(yield_stress, 7.3, 0.2)
+    assert v.text == "yield stress: resolved, sigma_y > 0 decisively (log BF +7.30 ± 0.20)" and v.holds
+    v = verdict(yield_stress, -RESOLVED, 0.1)
+    assert v.resolved and v.holds is False and v.text.startswith("yield stress: resolved, sigma_y = 0 strongly")
+    v = verdict(yield_stress, RESOLVED - 1e-6, 0.1, next_setup="70x70")
+    assert not v.resolved and v.holds is None
+    assert v.text == "yield stress: not resolved by these setups (log BF +2.30 ± 0.10, substantial); film 70x70 mm " \
+                     "next (the design's next setup)"
+    assert verdict(QUESTIONS[1], -5.0, 0.3).text == "shear thinning: resolved, n = 1 decisively (log BF -5.00 ± 0.30)"
+
+
+def test_law_names():
+    assert [law.name for law in parse_laws("bingham, newtonian,bingham")] == ["herschel-bulkley", "bingham", "newtonian"]
+    with pytest.raises(ValueError, match="unknown law 'casson': choose from herschel-bulkley, bingham"):
+        parse_laws("bingham,casson")
