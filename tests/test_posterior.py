@@ -344,3 +344,15 @@ def test_box_grows_while_the_posterior_reaches_an_inner_face():
     # nor does the material space's own boundary: the prior ends there
     assert not reaches_a_face(both, lp_both, np.r_[0.0, 0.3, 0.3], hi)
 
+
+
+def test_quadratic_features_are_the_trends():
+    """The emulator's fast prediction builds the trend's features itself: exactly scikit-learn's, bit for bit."""
+    from sklearn.preprocessing import PolynomialFeatures
+
+    from surrogate.emulator import LossEmulator, quadratic_features
+
+    X = np.random.default_rng(0).random((64, 3))
+    assert np.array_equal(quadratic_features(X), PolynomialFeatures(2).fit(X).transform(X))
+    emu = LossEmulator().fit(X, np.sum((X - 0.4) ** 2, axis=1))
+    assert np.allclose(emu.predict(X), emu.predict(X, return_std=True)[0], rtol=1e-12, atol=1e-15)
