@@ -271,7 +271,7 @@ def importance_log_z(log_like: Callable, samples, lo, hi, *, draws: int = DRAWS,
     return log_z, err, ess, z, ll
 
 
-def face_posterior(log_like: Callable, law: Law, lo, hi, *, seed: int = 0, start: int = 2048, min_ess: float = 400.0,
+def face_posterior(log_like: Callable, law: Law, lo, hi, *, seed: int = 0, start: int = 2048, min_ess: float = 200.0,
                    max_steps: int = 5000):
     """emcee samples (free coordinates) and their log-likelihoods of ``law``'s posterior on its face of the box
     [lo, hi] (``log_like`` takes normalised materials (m, 3)); the walkers start at the best of ``start`` Sobol
