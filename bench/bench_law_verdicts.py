@@ -41,7 +41,7 @@ def rheometer_fits() -> dict:
 
 
 def main(argv=None) -> int:
-    from mpm.datasets import manifest, real_world_dir, table1
+    from mpm.datasets import material_rows, real_world_dir, table1
     from similarity.posterior_summary import read_posterior
     from studies.cli import main as virheo
 
@@ -53,12 +53,12 @@ def main(argv=None) -> int:
     p.add_argument("--only", nargs="*", default=None, help=f"slugs: {', '.join(SLUGS.values())}")
     args = p.parse_args(argv)
     root = Path(args.root)
-    rows, fits, results = manifest(), rheometer_fits(), {}
+    fits, results = rheometer_fits(), {}
     print(f"measured: {how_measured()}")
     for name, slug in SLUGS.items():
         if args.only and slug not in args.only:
             continue
-        mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
+        mine = material_rows(name)
         folders = [str(Path(real_world_dir()) / r["folder"]) for r in mine]
         out = root / slug
         wall = {}

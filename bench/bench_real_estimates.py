@@ -134,7 +134,7 @@ def score(out: Path, paper, curve, workers: int, others=()) -> dict:
 
 def main(argv=None) -> int:
     from mpm import experiment as xp
-    from mpm.datasets import manifest, real_world_dir, table1
+    from mpm.datasets import material_rows, real_world_dir, table1
     from studies.cli import main as virheo
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -206,11 +206,10 @@ def main(argv=None) -> int:
     curves = rheometer_curves()
     summary_path = root / "real_estimates.json"
     results = json.loads(summary_path.read_text()) if summary_path.exists() else {}
-    rows = manifest()
     for name, slug in SLUGS.items():
         if args.only and slug not in args.only:
             continue
-        mine = sorted((r for r in rows if r["material"].lower() == name.lower()), key=lambda r: r["setup_index"])
+        mine = material_rows(name)
         folders = [str(Path(real_world_dir()) / r["folder"]) for r in mine]
         out = root / slug
         done = False

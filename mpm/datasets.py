@@ -43,6 +43,12 @@ def manifest() -> list[dict]:
     return _rows(real_world_dir() / "manifest.csv")
 
 
+def material_rows(material: str) -> list[dict]:
+    """The manifest rows (:func:`manifest`) of one material (case-insensitive name), in setup order."""
+    rows = [r for r in manifest() if r["material"].lower() == material.lower()]
+    return sorted(rows, key=lambda r: int(r["setup_index"]))
+
+
 def table1(row: dict):
     """The paper's Table-1 estimate of a manifest row (:func:`manifest`), as a :class:`mpm.params.Material` (SI)."""
     from mpm.params import Material
