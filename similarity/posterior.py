@@ -17,6 +17,9 @@
   between sparse training points draws the posterior there, and the draws' simulations take it away.
 * Sampler: :func:`similarity.mcmc.sample` (emcee, resumable HDF5 backend ``posterior.h5`` in the run
   folder), walkers started in a small ball around the CMA-ES optimum.
+* Laws: the evidence of Herschel-Bulkley and its special cases on the same emulated likelihood
+  (:func:`law_evidences`, :mod:`similarity.evidence`); the box also grows until it reaches each law's face and
+  holds each law's posterior on it, and draws of those posteriors are simulated as the posterior's are.
 """
 from __future__ import annotations
 
@@ -28,7 +31,7 @@ from scipy.stats import chi2
 
 from mpm.files import write_json
 from mpm.params import Material
-from similarity.evidence import LAWS, parse_laws, summarise
+from similarity.evidence import LAWS, law_evidence, parse_laws, summarise
 from similarity.flow_band import flow_band
 from similarity.mcmc import Posterior, check_backend, sample
 from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, PosteriorStats, PosteriorSummary,  # noqa: F401
@@ -226,11 +229,10 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
 
 def law_evidences(laws, noise, emu, samples, lo, hi, *, seed: int = 0):
     """The evidence (:func:`similarity.evidence.law_evidence`) of each of ``laws`` on the emulated eq. (1) in the box
-    [lo, hi] (``samples``: the Herschel-Bulkley posterior's), and why the box must grow (None when it need not): a law's face outside the box (the emulator is
-    never extrapolated to it), or a law's posterior on its face reaching an inner face of the box.  Returns
-    (the evidences computed, the reason or None, each special law's posterior samples on its face)."""
-    from similarity.evidence import law_evidence
-
+    [lo, hi] (``samples``: the Herschel-Bulkley posterior's), and why the box must grow (None when it need not): a
+    law's face outside the box (the emulator is never extrapolated to it), or a law's posterior on its face reaching
+    an inner face of the box.  Returns (the evidences computed, the reason or None, each special law's posterior
+    samples on its face)."""
     away = [law.name for law in laws if not law.on_face(lo, hi)]
     if away:
         return [], f"the emulator's box does not reach the face of {', '.join(away)}", []
