@@ -144,8 +144,8 @@ def run_case(case: LawCase, *, config: dict, forward, progress=None) -> LawRecor
     write_json(folder / "result.json", est.to_dict() | {
         "folders": [str(Path(e.path).resolve()) for e in experiments], "simulator": config["simulator"],
         "truth": truth.to_dict(), "e_rel": e_rel(truth, est.material)})
-    a = analyse(folder, forward=forward, new_simulations=config["new_simulations"], seed=seed,
-                min_ess=config["min_ess"], progress=progress)
+    a = analyse(folder, forward=forward, new_simulations=config["new_simulations"], half_width=config["half_width"],
+                seed=seed, min_ess=config["min_ess"], progress=progress)
     clock["posterior"] = time.perf_counter()
     steps = list(clock)
     wall = {b: clock[b] - clock[a_] for a_, b in zip(steps, steps[1:])}
@@ -207,7 +207,8 @@ def run_study(out, *, quick: bool = False, preset: str | None = None, generation
     footage = ForwardModel(cell_mm=2.5, ppc=1) if quick else FOOTAGE_MODEL
     config = {"preset": p.name, "generations": int(generations or p.generations), "new_simulations": int(new_simulations),
               "seed": int(seed), "min_ess": float(min_ess), "simulator": forward.simulator,
-              "footage_model": {"cell_mm": footage.cell_mm, "ppc": footage.ppc}, "quick": bool(quick)}
+              "footage_model": {"cell_mm": footage.cell_mm, "ppc": footage.ppc}, "quick": bool(quick),
+              "half_width": 0.5 if quick else 0.1}  # the emulator's first box: the report's default, wider when quick
     return LawStudy(out, config).run(forward=forward, progress=progress)
 
 

@@ -54,7 +54,7 @@ def test_scoring_counts_resolved_right_and_decisively_wrong():
 
 def _study(out, log):
     argv = [sys.executable, "-m", "studies.cli", "study", "laws", "--quick", "--generations", "3", "--new-simulations",
-            "8", "--min-ess", "200", "--workers", "0", "--quiet", "--out", str(out)]
+            "8", "--min-ess", "100", "--workers", "0", "--quiet", "--out", str(out)]
     return subprocess.run(argv, env=dict(ENV, FAKE_FORWARD_LOG=str(log)), capture_output=True, text=True, timeout=900)
 
 
