@@ -18,7 +18,7 @@
 * Sampler: :func:`similarity.mcmc.sample` (emcee, resumable HDF5 backend ``posterior.h5`` in the run
   folder), walkers started in a small ball around the CMA-ES optimum.
 * Laws: the evidence of Herschel-Bulkley and its special cases on the same emulated likelihood
-  (:func:`law_evidences`, :mod:`similarity.evidence`); the box also grows until it reaches each law's face and
+  (:mod:`similarity.law_evidence`); the box also grows until it reaches each law's face and
   holds each law's posterior on it, and draws of those posteriors are simulated as the posterior's are.
 """
 from __future__ import annotations
@@ -27,11 +27,12 @@ from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
-from scipy.stats import chi2
 
 from mpm.files import write_json
 from mpm.params import Material
-from similarity.evidence import LAWS, law_evidence, parse_laws, summarise
+from similarity.evidence import parse_laws, summarise
+from similarity.law_evidence import LAW_NAMES, TRAINING_FILE, face_draws, law_evidences
+from similarity.trust_box import REACH_NATS, cut_fraction, reaches_a_face
 from similarity.flow_band import flow_band
 from similarity.mcmc import Posterior, check_backend, sample
 from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, PosteriorStats, PosteriorSummary,  # noqa: F401
@@ -42,13 +43,9 @@ from similarity.progress import Message, first_line
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
 MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
-EDGE = 0.05  # the outer fraction of the box's width next to a face in which a sample counts as at that face
 CHECK_ROUNDS = 4  # posterior checks per box: simulated draws join the training set while the emulator is optimistic
 CHECK_NATS = 1.0  # the most the emulator may promise above the simulator on the posterior's draws (mean, eq. 1)
 FOLDS = 5  # k of the k-fold cross-validation that measures the emulator's error
-TRAINING_FILE = "posterior_training.npz"
-LAW_NAMES = tuple(LAWS)  # the laws whose evidence a report computes by default
-REACH_NATS = float(0.5 * chi2.ppf(0.999, 3))  # 8.1: -log p (eq. 1) within which a 3-D Gaussian holds 99.9 % of its mass
 MIN_SCORED = 10  # the emulator's error is measured on at least this many of the lowest training losses
 
 
@@ -85,31 +82,6 @@ def discretisation_error(run: Run) -> float:
 def not_among(X, known, tol: float) -> np.ndarray:
     """Mask of the rows of ``X`` that match no row of ``known`` within ``tol`` in every coordinate."""
     return ~np.any(np.all(np.abs(X[:, None] - known[None]) < tol, axis=2), axis=1)
-
-
-def at_inner_face(samples, lo, hi) -> np.ndarray:
-    """Mask of the samples in the outer ``EDGE`` of the box [lo, hi] next to a face inside (0, 1)^d."""
-    samples, lo, hi = np.atleast_2d(samples), np.asarray(lo, float), np.asarray(hi, float)
-    band = EDGE * (hi - lo)
-    at_lo = (samples < lo + band) & (lo > 1e-9)
-    at_hi = (samples > hi - band) & (hi < 1 - 1e-9)
-    return np.any(at_lo | at_hi, axis=1)
-
-
-def cut_fraction(samples, lo, hi) -> float:
-    """Fraction of samples at an inner face of the box [lo, hi] (:func:`at_inner_face`): where the box, not the
-    likelihood, ends the posterior."""
-    return float(np.mean(at_inner_face(samples, lo, hi))) if len(np.atleast_2d(samples)) else 0.0
-
-
-def reaches_a_face(samples, log_prob, lo, hi) -> bool:
-    """Whether the posterior reaches an inner face of the box [lo, hi]: a sample at one (:func:`at_inner_face`)
-    whose log-posterior ``log_prob`` (one per sample) is within ``REACH_NATS`` of the samples' best.  Then the
-    likelihood has not fallen off before the face, and the posterior goes on beyond it: the box is too small,
-    however few samples lie there (a valley that leaves the box through a saddle puts few there)."""
-    log_prob = np.asarray(log_prob, float)
-    face = at_inner_face(samples, lo, hi)
-    return bool(face.any() and np.max(log_prob[face]) >= np.max(log_prob) - REACH_NATS)
 
 
 def box_log_posterior(noise, emu, lo, hi):
@@ -225,38 +197,6 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
         X, y = np.vstack([X, X_chk]), np.concatenate([y, y_chk])
         if check.passed or round_ == rounds:
             return CheckedFit(emu, validation, noise, post, check, Xf, yf), X, y
-
-
-def law_evidences(laws, noise, emu, samples, lo, hi, *, seed: int = 0):
-    """The evidence (:func:`similarity.evidence.law_evidence`) of each of ``laws`` on the emulated eq. (1) in the box
-    [lo, hi] (``samples``: the Herschel-Bulkley posterior's), and why the box must grow (None when it need not): a
-    law's face outside the box (the emulator is never extrapolated to it), or a law's posterior on its face reaching
-    an inner face of the box.  Returns (the evidences computed, the reason or None, each special law's posterior
-    samples on its face)."""
-    away = [law.name for law in laws if not law.on_face(lo, hi)]
-    if away:
-        return [], f"the emulator's box does not reach the face of {', '.join(away)}", []
-
-    def log_like(x):
-        return noise.log_likelihood(emu.predict(np.atleast_2d(x)))
-
-    out, cut, faces = [], [], []
-    for law in laws:
-        ev, face = law_evidence(log_like, law, lo, hi, samples=None if law.fixed else samples, seed=seed)
-        out.append(ev)
-        if law.fixed:
-            faces.append(face)
-            if reaches_a_face(face, log_like(face), lo, hi):
-                cut.append(law.name)
-    return out, (f"the posterior of {', '.join(cut)} on its face reaches an inner face of the emulator's box"
-                 if cut else None), faces
-
-
-def face_draws(faces, count: int, seed: int, round_: int) -> np.ndarray:
-    """``count`` draws of each special law's posterior samples on its face (normalised), to simulate."""
-    rng = np.random.default_rng([seed, 99, round_])
-    picks = [f[rng.choice(len(f), size=min(count, len(f)), replace=False)] for f in faces if len(f)]
-    return np.vstack(picks) if picks else np.zeros((0, 3))
 
 
 @dataclass
@@ -437,40 +377,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                            or (next_eig[0]["setup"] if next_eig else None)) if evidences else None)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     np.save(run.folder / "posterior_log_prob.npy", post.log_prob)  # one log-posterior per sample
-    np.savez(run.folder / TRAINING_FILE, X=fit.X, y=fit.y, seed=seed)  # the emulator's training set: `virheo laws` refits it
+    np.savez(run.folder / TRAINING_FILE, X=fit.X, y=fit.y, seed=seed)  # `virheo laws` refits the emulator from it
     write_json(run.folder / "posterior.json", summary)
     return Analysis(run, post, noise, emu, summary, frames, box_log_posterior(noise, emu, lo, hi))
 
-
-def evidence_of_report(folder, laws=LAW_NAMES) -> "EvidenceSummary":
-    """The laws' evidence again from what ``virheo report`` left in ``folder``: posterior.json (noise, box),
-    posterior_samples.npy and the emulator's training set (refitted as the report fitted it).  Simulates nothing:
-    a law whose face lies outside the report's box is a ValueError (``virheo report --laws`` grows the box)."""
-    from pathlib import Path
-
-    from surrogate.emulator import LossEmulator
-
-    laws = parse_laws(",".join(laws))
-    folder = Path(folder)
-    summary = read_posterior(folder)
-    for name in ("posterior_samples.npy", TRAINING_FILE):
-        if not (folder / name).is_file():
-            raise ValueError(f"{folder}: no {name} (posterior samples and emulator); run `virheo report {folder}` first")
-    try:
-        samples = np.load(folder / "posterior_samples.npy")
-        with np.load(folder / TRAINING_FILE) as t:
-            X, y, seed = t["X"], t["y"], int(t["seed"])
-    except (OSError, ValueError, KeyError) as exc:
-        raise ValueError(f"{folder}: unreadable posterior files ({first_line(exc)}); run `virheo report {folder}` "
-                         "again") from None
-    if samples.ndim != 2 or samples.shape[1] != 3 or len(samples) == 0:
-        raise ValueError(f"{folder}: posterior_samples.npy holds no samples; run `virheo report {folder}` again")
-    lo, hi = (np.asarray(v, float) for v in summary.emulator.trust_region)
-    emu = LossEmulator(seed=seed).fit(X, y)
-    evidences, why, _ = law_evidences(laws, summary.noise, emu, samples, lo, hi, seed=seed)
-    if not evidences:
-        raise ValueError(f"{folder}: {why} (never extrapolated); run `virheo report {folder} --laws "
-                         f"{','.join(law.name for law in laws)}`, which grows it")
-    nxt = (summary.next_setup_information or {}).get("setup") or (
-        summary.next_setups_eig[0]["setup"] if summary.next_setups_eig else None)
-    return summarise(evidences, lo, hi, next_setup=nxt)

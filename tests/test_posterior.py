@@ -117,7 +117,7 @@ def test_noise_scale_counts_one_residual_per_frame_by_default():
 
 
 def test_cut_fraction_counts_only_faces_inside_the_material_space():
-    from similarity.posterior import EDGE, cut_fraction
+    from similarity.trust_box import EDGE, cut_fraction
 
     rng = np.random.default_rng(0)
     u = rng.random((200000, 3))
@@ -301,7 +301,8 @@ def test_emulator_error_is_measured_where_the_likelihood_reaches():
     e_emul), so it is the small error near the optimum, not the box-wide held-out error that would flatten the
     likelihood there."""
     from similarity.likelihood import NoiseScale
-    from similarity.posterior import MIN_SCORED, REACH_NATS, emulator_error, within_reach
+    from similarity.posterior import MIN_SCORED, emulator_error, within_reach
+    from similarity.trust_box import REACH_NATS
 
     def loss(X):
         d = np.linalg.norm(X - 0.5, axis=1)

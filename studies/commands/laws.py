@@ -7,7 +7,7 @@ import json
 
 
 def register(subparsers) -> None:
-    from similarity.posterior import LAW_NAMES
+    from similarity.law_evidence import LAW_NAMES
 
     p = subparsers.add_parser(
         "laws", help="does the material have a yield stress, is it shear thinning: the laws' evidence of a reported run",
@@ -25,7 +25,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from similarity.evidence import parse_laws
-    from similarity.posterior import evidence_of_report
+    from similarity.law_evidence import evidence_of_report
     from studies.commands.report import print_verdicts
 
     laws = [law.name for law in parse_laws(args.laws)]  # an unknown law stops here

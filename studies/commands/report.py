@@ -6,10 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from similarity.evidence import LAWS
+from similarity.law_evidence import LAW_NAMES
 from studies.commands.context import add_posterior_options, check_engine, check_posterior_options, seed
-
-LAW_NAMES = tuple(LAWS)
 
 
 def register(subparsers) -> None:
