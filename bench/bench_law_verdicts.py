@@ -20,7 +20,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
+from measured import how_measured, real_materials  # noqa: E402  (bench/ is this script's folder)
 
 SLUGS = {"Japanese thickened Worcestershire sauce": "worcestershire", "moisturizing milk": "milk",
          "Japanese cabbage pancake sauce": "okonomiyaki", "lotion": "lotion", "thousand island dressing": "island",
@@ -41,7 +41,7 @@ def rheometer_fits() -> dict:
 
 
 def main(argv=None) -> int:
-    from mpm.datasets import material_rows, real_world_dir, table1
+    from mpm.datasets import table1
     from similarity.posterior_summary import read_posterior
     from studies.cli import main as virheo
 
@@ -55,11 +55,7 @@ def main(argv=None) -> int:
     root = Path(args.root)
     fits, results = rheometer_fits(), {}
     print(f"measured: {how_measured()}")
-    for name, slug in SLUGS.items():
-        if args.only and slug not in args.only:
-            continue
-        mine = material_rows(name)
-        folders = [str(Path(real_world_dir()) / r["folder"]) for r in mine]
+    for name, slug, mine, folders in real_materials(SLUGS, args.only):
         out = root / slug
         wall = {}
         done = (out / "result.json").exists() and json.loads((out / "result.json").read_text()).get("preset") == args.preset

@@ -33,7 +33,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import numpy as np  # noqa: E402
-from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
+from measured import how_measured, real_materials  # noqa: E402  (bench/ is this script's folder)
 
 VALLEY = 0.01  # the materials within this fraction of the best loss under the final model are printed as its valley
 SLUGS = {"Japanese thickened Worcestershire sauce": "worcestershire", "moisturizing milk": "milk",
@@ -134,7 +134,7 @@ def score(out: Path, paper, curve, workers: int, others=()) -> dict:
 
 def main(argv=None) -> int:
     from mpm import experiment as xp
-    from mpm.datasets import material_rows, real_world_dir, table1
+    from mpm.datasets import table1
     from studies.cli import main as virheo
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -206,11 +206,7 @@ def main(argv=None) -> int:
     curves = rheometer_curves()
     summary_path = root / "real_estimates.json"
     results = json.loads(summary_path.read_text()) if summary_path.exists() else {}
-    for name, slug in SLUGS.items():
-        if args.only and slug not in args.only:
-            continue
-        mine = material_rows(name)
-        folders = [str(Path(real_world_dir()) / r["folder"]) for r in mine]
+    for name, slug, mine, folders in real_materials(SLUGS, args.only):
         out = root / slug
         done = False
         if (out / "result.json").exists():

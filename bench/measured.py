@@ -88,3 +88,16 @@ def native_build() -> str:
 def load() -> str:
     """The 1-, 5- and 15-minute load averages."""
     return "%.2f/%.2f/%.2f" % os.getloadavg()
+
+
+def real_materials(slugs: dict, only=None):
+    """(name, slug, manifest rows, footage folders) of each shared material in ``slugs`` (name -> slug), in setup
+    order, those of ``only`` (slugs) alone when given."""
+    from mpm.datasets import material_rows, real_world_dir
+
+    for name, slug in slugs.items():
+        if only and slug not in only:
+            continue
+        rows = material_rows(name)
+        yield name, slug, rows, [str(real_world_dir() / r["folder"]) for r in rows]
+

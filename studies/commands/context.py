@@ -125,6 +125,15 @@ def add_posterior_options(p: argparse.ArgumentParser) -> None:
                         f"(components) or per correlation area (default {NOISE_COUNT})")
 
 
+def add_laws_option(p: argparse.ArgumentParser) -> None:
+    """``--laws LIST``: the laws whose evidence is computed (``virheo report``, ``virheo laws``)."""
+    from similarity.law_evidence import LAW_NAMES
+
+    p.add_argument("--laws", default=",".join(LAW_NAMES), metavar="LIST",
+                   help=f"laws whose evidence is computed, comma separated (default all: {', '.join(LAW_NAMES)}; "
+                        "herschel-bulkley always)")
+
+
 def check_posterior_options(args) -> None:
     """ValueError (one line) for posterior options out of range."""
     if args.new_simulations < 0 or args.min_ess <= 0 or args.max_steps < 1 or not 0 < args.half_width <= 0.5:

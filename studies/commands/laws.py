@@ -7,7 +7,7 @@ import json
 
 
 def register(subparsers) -> None:
-    from similarity.law_evidence import LAW_NAMES
+    from studies.commands.context import add_laws_option
 
     p = subparsers.add_parser(
         "laws", help="does the material have a yield stress, is it shear thinning: the laws' evidence of a reported run",
@@ -17,8 +17,7 @@ def register(subparsers) -> None:
         "|ln BF| = ln 10). Simulates nothing; `virheo report` computes the same and grows its box to every law's face.",
     )
     p.add_argument("run", metavar="RUN", help="run folder holding posterior.json and the posterior's samples")
-    p.add_argument("--laws", default=",".join(LAW_NAMES), metavar="LIST",
-                   help=f"laws, comma separated (default all: {', '.join(LAW_NAMES)}; herschel-bulkley always)")
+    add_laws_option(p)
     p.add_argument("--json", action="store_true", help="print the evidence as JSON")
     p.set_defaults(func=run)
 

@@ -6,8 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from similarity.law_evidence import LAW_NAMES
-from studies.commands.context import add_posterior_options, check_engine, check_posterior_options, seed
+from studies.commands.context import add_laws_option, add_posterior_options, check_engine, check_posterior_options, seed
 
 
 def register(subparsers) -> None:
@@ -27,9 +26,7 @@ def register(subparsers) -> None:
     p.add_argument("--workers", type=int, default=None, metavar="K", help="local worker processes (default: one per core)")
     p.add_argument("--no-discretisation", action="store_true",
                    help="skip the half-cell simulation of the estimate that measures the discretisation error")
-    p.add_argument("--laws", default=",".join(LAW_NAMES), metavar="LIST",
-                   help="laws whose evidence is computed, comma separated (default all: "
-                        f"{', '.join(LAW_NAMES)}; herschel-bulkley always)")
+    add_laws_option(p)
     p.add_argument("--quiet", action="store_true", help="no progress messages")
     p.set_defaults(func=run)
 
