@@ -97,7 +97,7 @@ def chunked_backend(path, name: str):
 
         def load(self) -> None:
             with h5py.File(path, "r") as f:
-                if name not in f:
+                if name not in f or "rng_keys" not in f[name]:  # none, or emcee's own layout: sampled afresh
                     return
                 g = f[name]
                 super().reset(int(g.attrs["nwalkers"]), int(g.attrs["ndim"]))

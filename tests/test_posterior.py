@@ -357,3 +357,17 @@ def test_quadratic_features_are_the_trends():
     assert np.array_equal(quadratic_features(X), PolynomialFeatures(2).fit(X).transform(X))
     emu = LossEmulator().fit(X, np.sum((X - 0.4) ** 2, axis=1))
     assert np.allclose(emu.predict(X), emu.predict(X, return_std=True)[0], rtol=1e-12, atol=1e-15)
+
+
+def test_a_chain_in_emcees_own_layout_is_sampled_afresh(tmp_path):
+    """A posterior.h5 group written by emcee's HDFBackend (earlier versions) is replaced, not refused."""
+    import emcee
+
+    from similarity.mcmc import stored_chain
+
+    path = tmp_path / "posterior.h5"
+    old = emcee.EnsembleSampler(16, 3, _log_prob, vectorize=True, backend=emcee.backends.HDFBackend(str(path), name="mcmc"))
+    old.run_mcmc(0.5 + 0.01 * np.random.default_rng(0).standard_normal((16, 3)), 20)
+    post = sample(_log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=100, check_every=100,
+                  backend=path)
+    assert post.iterations == 100 and stored_chain(path).shape == (100, 16, 3)
