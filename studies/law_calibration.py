@@ -134,8 +134,7 @@ def run_case(case: LawCase, *, config: dict, forward, progress=None) -> LawRecor
     stage1 = E.estimate([first], preset=config["preset"], seed=seed, forward=forward,
                         generations=config["generations"], progress=progress, propose=None)
     clock["stage 1"] = time.perf_counter()
-    second, _ = rank_by_simulation(stage1.material, [case.setup], preset=config.get("design_preset", SIMULATION_PRESET),
-                                   forward=forward).best()
+    second, _ = rank_by_simulation(stage1.material, [case.setup], preset=SIMULATION_PRESET, forward=forward).best()
     clock["design"] = time.perf_counter()
     experiments = [first, _film(truth, second, folder, config, forward)]
     est = E.estimate(experiments, preset=config["preset"], seed=seed, forward=forward,
