@@ -40,6 +40,20 @@ def emulate(material: Material, setups: Sequence[Setup], *, density: float = DEF
     return shells
 
 
+def film(material: Material, setup: Setup, folder, *, preset, forward: Forward, density: float = DEFAULT_DENSITY_KG_M3
+         ) -> Experiment:
+    """Footage of ``material`` in ``setup`` (:func:`emulate`) written as the experiment folder
+    ``folder/footage_<W>x<H>`` and read back from it, as real footage is read."""
+    from pathlib import Path
+
+    from mpm.experiment import load, write
+
+    shot = emulate(material, [setup], density=density, preset=preset, forward=forward)[0]
+    path = Path(folder) / f"footage_{setup}"
+    write(path, shot.frames, width_mm=setup.width_mm, height_mm=setup.height_mm, camera=shot.camera, density=density)
+    return load(path)
+
+
 def simulated_frames(material: Material, experiments, *, preset="footage", forward: Forward | None = None) -> list:
     """Silhouettes of ``material`` in each experiment's setup at the preset's final discretisation (None where
     the simulation failed).  For an estimate's material these come straight from the store.

@@ -81,6 +81,11 @@ PRESETS = {p.name: p for p in (
 )}
 
 
+def filming(preset, model: ForwardModel, name: str) -> Preset:
+    """``preset`` with ``model`` as its one and final model (no finishing stage): what films emulated footage."""
+    return replace(get_preset(preset), name=name, cell_mm=model.cell_mm, ppc=model.ppc, finish_generations=0)
+
+
 def get_preset(preset) -> Preset:
     if isinstance(preset, Preset):
         return preset

@@ -56,7 +56,7 @@ def design(cases: int, seed: int = 0) -> list[tuple[Material, Setup]]:
 
 def footage_preset(preset, setting: str):
     """The preset whose final model films the footage: the estimating one, or one at half its cell width."""
-    from similarity.estimate import get_preset
+    from similarity.presets import filming, get_preset
 
     preset = get_preset(preset)
     if setting == "same":
@@ -64,8 +64,7 @@ def footage_preset(preset, setting: str):
     if setting != "finer":
         raise ValueError(f"setting '{setting}' must be one of {', '.join(SETTINGS)}")
     model = preset.final.resolved()
-    return replace(preset, name=f"{preset.name}-fine", cell_mm=model.cell_mm / 2.0, ppc=model.ppc,
-                   finish_generations=0)
+    return filming(preset, replace(model, cell_mm=model.cell_mm / 2.0), name=f"{preset.name}-fine")
 
 
 # -- one case ------------------------------------------------------------------------------------------
@@ -112,8 +111,8 @@ class CalibrationCase:
 
 def run_case(case: CalibrationCase, *, config: dict, forward, progress=None) -> CalibrationRecord:
     """Footage, estimate, posterior and credible levels of one case, in ``case.folder``."""
-    from mpm.experiment import load, write as write_experiment
     from similarity import estimate as E
+    from similarity.emulation import film
     from similarity.posterior import analyse
 
     folder, truth, setup = Path(case.folder), case.truth, case.setup
@@ -121,18 +120,14 @@ def run_case(case: CalibrationCase, *, config: dict, forward, progress=None) -> 
     store = forward.store
     stored = store.count() if store is not None else 0
     # 1. footage, as an experiment folder (the estimate and the posterior read it like real footage)
-    shot = E.emulate(truth, [setup], density=DENSITY, preset=footage_preset(config["preset"], case.setting),
-                     forward=forward)[0]
-    footage = folder / f"footage_{setup}"
-    write_experiment(footage, shot.frames, width_mm=setup.width_mm, height_mm=setup.height_mm, camera=shot.camera,
-                     density=DENSITY)
-    exp = load(footage)
+    exp = film(truth, setup, folder, density=DENSITY, preset=footage_preset(config["preset"], case.setting),
+               forward=forward)
     # 2. one-setup estimate
     seed = config["seed"] + case.index
     est = E.estimate([exp], preset=config["preset"], seed=seed, forward=forward,
                      generations=config["generations"], progress=progress, propose=None)
     t_est = time.perf_counter() - t0
-    result = est.to_dict() | {"folders": [str(footage.resolve())], "simulator": config["simulator"],
+    result = est.to_dict() | {"folders": [str(Path(exp.path).resolve())], "simulator": config["simulator"],
                               "truth": truth.to_dict(), "e_rel": e_rel(truth, est.material)}
     write_json(folder / "result.json", result)
     # 3. the posterior of `virheo report`

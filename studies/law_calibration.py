@@ -19,7 +19,7 @@ and the cases left unresolved per true law.  Resumable case by case (:mod:`studi
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -98,24 +98,13 @@ class LawRecord(JsonRecord):
         return next((v for v in self.evidence["verdicts"] if v["question"] == question), None)
 
 
-def footage_preset(preset, model: ForwardModel):
-    """``preset`` with ``model`` as its final model: what films the footage."""
-    from similarity.presets import get_preset
-
-    return replace(get_preset(preset), name=f"footage-{model.cell_mm:g}mm", cell_mm=model.cell_mm, ppc=model.ppc,
-                   finish_generations=0)
-
-
 def _film(truth, setup, folder, config, forward):
-    from mpm.experiment import load, write as write_experiment
-    from similarity.emulation import emulate
+    from similarity.emulation import film
+    from similarity.presets import filming
 
-    shot = emulate(truth, [setup], density=DENSITY, forward=forward,
-                   preset=footage_preset(config["preset"], ForwardModel(**config["footage_model"])))[0]
-    path = folder / f"footage_{setup}"
-    write_experiment(path, shot.frames, width_mm=setup.width_mm, height_mm=setup.height_mm, camera=shot.camera,
-                     density=DENSITY)
-    return load(path)
+    model = ForwardModel(**config["footage_model"])
+    return film(truth, setup, folder, density=DENSITY, forward=forward,
+                preset=filming(config["preset"], model, name=f"footage-{model.cell_mm:g}mm"))
 
 
 def run_case(case: LawCase, *, config: dict, forward, progress=None) -> LawRecord:
