@@ -30,10 +30,10 @@ def engines_of(store: Store) -> str:
     """The engines that ran the store's simulations, as ``stats["arch"]`` names them (with the native engine's
     instruction set)."""
     names = set()
-    for req in {r.engine: r for r in store.requests()}.values():  # one stored simulation per engine
+    for req in {r.model.engine: r for r in store.requests()}.values():  # one stored simulation per engine
         res = store.get(req)
         stats = res.stats if res is not None else {}
-        names.add(stats.get("arch", req.engine or "?") + (f" ({stats['isa']})" if stats.get("isa") else ""))
+        names.add(stats.get("arch", req.model.engine or "?") + (f" ({stats['isa']})" if stats.get("isa") else ""))
     return ", ".join(sorted(names))
 
 

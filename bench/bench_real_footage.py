@@ -20,6 +20,7 @@ import numpy as np
 from mpm import batch
 from mpm import experiment as xp
 from mpm.datasets import manifest, real_world_dir, table1
+from mpm.model import ForwardModel
 from mpm.params import Material
 from mpm.store import Store
 from similarity.space import center
@@ -66,7 +67,7 @@ def main(argv=None) -> int:
                 if args.columns is not None and label not in args.columns:
                     continue
                 req = batch.request_for(m, e, density=e.density, depth_mm=e.depth_mm, camera=e.camera,
-                                        cell_mm=args.cell_mm, ppc=args.ppc)
+                                        model=ForwardModel(args.cell_mm, args.ppc))
                 jobs.append((req, batch.experiment_id(e.frames, e.name), e.frames))
                 keys.append((name, r["folder"], label))
     with (batch.local_executor(args.workers) if args.workers else batch.local_executor(0)) as ex:

@@ -29,6 +29,7 @@ import numpy as np
 
 from mpm import runtime
 from mpm.loss import video_loss
+from mpm.model import ForwardModel
 from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE
 from mpm.store import SimRequest, SimResult, Store, digest
 
@@ -36,7 +37,7 @@ DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
 
 # Source files of this package that do not change what a simulation computes.
 _NOT_SIMULATION = {"store.py", "store_index.py", "batch.py", "forward.py", "datasets.py", "experiment.py", "loss.py",
-                   "shear.py", "ranges.py", "laws.py", "__init__.py"}
+                   "shear.py", "ranges.py", "laws.py", "model.py", "__init__.py"}
 
 
 # -- requests --------------------------------------------------------------------------------------
@@ -48,24 +49,18 @@ def camera_json(camera) -> str | None:
     return json.dumps(d, sort_keys=True, separators=(",", ":"), default=float)
 
 
-def request_for(material, setup, *, density: float, depth_mm: float = DEFAULT_DEPTH_MM, camera=None, cell_mm=None,
-                ppc: int | None = None, dim: int = 3, flow_rule: str = "paper", precision: str = "f32",
-                image_size=WORKING_SIZE, simulator: str = DEFAULT_SIMULATOR, slip_length_m=None,
-                density_correction: bool = False, engine: str | None = None, kappa_pa: float | None = None,
-                mu_pa: float | None = None) -> SimRequest:
-    """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``),
-    for ``engine`` (None: the one that ``$VIRHEO_ARCH`` chooses; ValueError, one line, for an unknown or
-    unavailable one)."""
+def request_for(material, setup, *, density: float, model: ForwardModel = ForwardModel(),
+                depth_mm: float = DEFAULT_DEPTH_MM, camera=None, dim: int = 3, precision: str = "f32",
+                image_size=WORKING_SIZE, simulator: str = DEFAULT_SIMULATOR) -> SimRequest:
+    """Build a :class:`SimRequest` from any material (``.eta .n .sigma_y``) and setup (``.width_mm .height_mm``)
+    with ``model`` keyed (:meth:`ForwardModel.keyed`: its defaults filled in and its engine resolved; ValueError,
+    one line, for an unavailable engine)."""
     return SimRequest(
         eta=float(material.eta), n=float(material.n), sigma_y=float(material.sigma_y),
         width_mm=float(setup.width_mm), height_mm=float(setup.height_mm), density=float(density),
-        depth_mm=float(depth_mm), camera=camera_json(camera),
-        cell_mm=None if cell_mm is None else float(cell_mm), ppc=None if ppc is None else int(ppc),
-        slip_length_m=None if slip_length_m is None else float(slip_length_m),
-        density_correction=bool(density_correction), dim=int(dim), flow_rule=str(flow_rule),
-        precision=str(precision), image_size=tuple(int(v) for v in image_size),
-        simulator=simulator, code_version=code_version(simulator), engine=engine or runtime.engine_for(str(precision)),
-        kappa_pa=None if kappa_pa is None else float(kappa_pa), mu_pa=None if mu_pa is None else float(mu_pa),
+        depth_mm=float(depth_mm), camera=camera_json(camera), model=model.keyed(str(precision)), dim=int(dim),
+        precision=str(precision), image_size=tuple(int(v) for v in image_size), simulator=simulator,
+        code_version=code_version(simulator),
     )
 
 
@@ -111,27 +106,16 @@ def code_version(simulator: str) -> str:
 
 # -- the forward model (runs in the workers) -------------------------------------------------------
 def run_mpm(request: SimRequest) -> SimResult:
-    """The default forward model: :func:`mpm.simulate` with the request's settings, on the request's engine
-    (ValueError when this process would simulate on another: its ``$VIRHEO_ARCH`` differs from the requester's)."""
+    """The default forward model: :func:`mpm.simulate` of the request's material, setup and experiment with its
+    model, whole."""
     import mpm.solver as solver
-
-    here = runtime.engine_for(request.precision)
-    if request.engine and request.engine != here:
-        raise ValueError(f"a simulation requested for the {request.engine} engine would run on {here} in this "
-                         f"process (VIRHEO_ARCH={os.environ.get('VIRHEO_ARCH', 'auto')}): give every worker the "
-                         f"requester's VIRHEO_ARCH")
     from mpm.camera import Camera
     from mpm.params import Material, Setup
 
-    material, setup = Material(*request.material), Setup(request.width_mm, request.height_mm)
     camera = Camera.from_dict(json.loads(request.camera)) if request.camera else None
-    sim = solver.simulate(
-        material, setup, density=request.density, cell_mm=request.cell_mm, dim=request.dim,
-        flow_rule=request.flow_rule, camera=camera, depth_mm=request.depth_mm,
-        image_size=tuple(request.image_size), precision=request.precision, ppc=request.ppc,
-        slip_length_m=request.slip_length_m, density_correction=request.density_correction,
-        kappa_pa=request.kappa_pa, mu_pa=request.mu_pa,
-    )
+    sim = solver.simulate(Material(*request.material), Setup(request.width_mm, request.height_mm),
+                          model=request.model, density=request.density, dim=request.dim, camera=camera,
+                          depth_mm=request.depth_mm, image_size=tuple(request.image_size), precision=request.precision)
     sil = None if getattr(sim, "silhouettes", None) is None else np.asarray(sim.silhouettes, dtype=bool)
     return SimResult(sil, np.asarray(sim.front_m, float), np.asarray(sim.times, float), dict(sim.stats or {}))
 

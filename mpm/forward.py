@@ -1,8 +1,9 @@
 """The seam between the inverse problem and the forward model.
 
-* :class:`ForwardModel` (a value): how a material is simulated apart from the experiment, i.e. the
-  discretisation (cell width, particles per cell), the walls (Navier slip length), the density correction,
-  the flow rule and the engine.  Density, depth, camera and image size stay with each experiment.
+* :class:`ForwardModel` (a value, :mod:`mpm.model`): how a material is simulated apart from the experiment, i.e.
+  the discretisation (cell width, particles per cell), the walls (Navier slip length), the density correction,
+  the flow rule, the elastic moduli and the engine.  Density, depth, camera and image size stay with each
+  experiment.  It travels whole, inside the store request, to the worker that simulates it.
 * :class:`Forward` (a service): the simulation store and the executor that runs what the store lacks.  It
   gives the inverse problem what it needs: video losses of (materials x experiments) under a model,
   simulated results and silhouettes, and the materials the store already holds for a model and experiments.
@@ -12,89 +13,19 @@ are built here, and only here, from a material, an experiment and a model.
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from mpm import batch, runtime
+from mpm import batch
 from mpm.experiment import Experiment
-from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE, check_flow_rule
-from mpm.ranges import check_cell_mm, check_modulus, check_ppc
-from mpm.scene import KAPPA_PA, MU_PA
+from mpm.model import ForwardModel  # noqa: F401 (the seam's value, re-exported)
+from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE
 from mpm.store import SimRequest, SimResult, Store
 
 OnResult = Callable[[SimRequest, SimResult | None, bool], None]  # (request, result, served from the store)
-
-
-@dataclass(frozen=True)
-class ForwardModel:
-    """The forward model of a simulation: MPM cell width in mm, particles per cell per axis, the walls' Navier
-    slip length in metres, the solver's density correction, the flow rule, the engine and the elastic moduli in Pa.
-    None: the solver's default (the validated discretisation, sticking walls, the paper's kappa = 1e4 Pa and mu =
-    1e3 Pa); ``engine`` None: the one ``$VIRHEO_ARCH`` chooses (:func:`mpm.runtime.engine_for`), else one of
-    :data:`mpm.runtime.ENGINES`."""
-
-    cell_mm: float | None = None
-    ppc: int | None = None
-    slip_length_m: float | None = None
-    density_correction: bool = False
-    flow_rule: str = "paper"
-    engine: str | None = None
-    kappa_pa: float | None = None
-    mu_pa: float | None = None
-
-    def __post_init__(self):
-        """Every bound the scene enforces, checked here once, so that a bad model never reaches a worker."""
-        if self.cell_mm is not None:
-            check_cell_mm(self.cell_mm)
-        if self.ppc is not None:
-            check_ppc(self.ppc)
-        if self.slip_length_m is not None and not 0.0 <= self.slip_length_m <= 1.0:  # also refuses nan
-            raise ValueError(f"slip_length_m={self.slip_length_m!r} must be within 0..1 m (0: sticking walls)")
-        for name in ("kappa_pa", "mu_pa"):
-            if getattr(self, name) is not None:
-                check_modulus(getattr(self, name), name)
-        if self.engine is not None and self.engine not in runtime.ENGINES:
-            raise ValueError(f"unknown engine {self.engine!r}: expected one of {', '.join(runtime.ENGINES)}")
-        check_flow_rule(self.flow_rule)
-
-    def resolved(self) -> "ForwardModel":
-        """The same with the solver's defaults filled in (the engine stays as it is: None leaves it to
-        ``mpm.runtime`` when a request is made)."""
-        from mpm.solver import DEFAULT_CELL_MM, PARTICLES_PER_CELL, SLIP_LENGTH_M
-
-        return ForwardModel(float(DEFAULT_CELL_MM if self.cell_mm is None else self.cell_mm),
-                            int(PARTICLES_PER_CELL if self.ppc is None else self.ppc),
-                            float(SLIP_LENGTH_M if self.slip_length_m is None else self.slip_length_m),
-                            bool(self.density_correction), self.flow_rule, self.engine, self.kappa_pa, self.mu_pa)
-
-    def to_dict(self) -> dict:
-        """The model as a dict; the paper's moduli (None) are left out, as in records written before the model
-        carried them."""
-        return {k: v for k, v in asdict(self).items() if not (k in ("kappa_pa", "mu_pa") and v is None)}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "ForwardModel":
-        """The model of ``to_dict()``; also reads the four-key dicts that result files held before the model had
-        a flow rule and an engine.  One-line ValueError for other keys."""
-        names = {f.name for f in fields(cls)}
-        unknown = set(d) - names
-        if unknown:
-            raise ValueError(f"not a forward model: unknown key(s) {', '.join(sorted(unknown))}")
-        return cls(**d)
-
-    @classmethod
-    def of_record(cls, record: dict) -> "ForwardModel":
-        """The model a result.json or a stage of its history was computed with: its nested ``model``, else the
-        ``discretisation`` of result files written before the model was one value, else a stage's loose
-        ``cell_mm``/``ppc``/``slip_length_m``/``density_correction`` fields (missing ones: the defaults)."""
-        for key in ("model", "discretisation"):
-            if isinstance(record.get(key), dict):
-                return cls.from_dict(record[key])
-        return cls.from_dict({k: record[k] for k in ("cell_mm", "ppc", "slip_length_m", "density_correction")
-                              if k in record})
 
 
 def blank_experiment(setup, *, density: float, camera, depth_mm: float = DEFAULT_DEPTH_MM, image_size=WORKING_SIZE,
@@ -133,10 +64,27 @@ class Forward:
                 self.store.close()
             raise
         self.simulator = simulator or batch.DEFAULT_SIMULATOR
+        self._ran = [0]  # simulations run (not served from the store), shared with with_simulator's copies
+
+    @property
+    def simulations_run(self) -> int:
+        """How many simulations this object (and its :meth:`with_simulator` copies) ran, not counting those the
+        store served."""
+        return self._ran[0]
 
     def with_simulator(self, simulator: str | None) -> "Forward":
         """The same store and executor with another simulating function (closing it closes nothing)."""
-        return Forward(self.store, executor=self.executor, simulator=simulator)
+        other = Forward(self.store, executor=self.executor, simulator=simulator)
+        other._ran = self._ran
+        return other
+
+    def _counting(self, on_result: OnResult | None) -> OnResult:
+        def seen(request: SimRequest, result: SimResult | None, cached: bool) -> None:
+            if not cached:
+                self._ran[0] += 1
+            if on_result:
+                on_result(request, result, cached)
+        return seen
 
     def close(self) -> None:
         """Shut down the executor and close the store, where this object opened them."""
@@ -158,17 +106,10 @@ class Forward:
         """The store request that simulates ``material`` (``.eta .n .sigma_y``) in ``experiment``'s setup, density,
         depth, camera and image size with ``model``, its solver defaults filled in (so every request names its
         discretisation) and its engine resolved by ``mpm.runtime`` where the model leaves it open."""
-        model = model.resolved()
-        frames = np.asarray(experiment.frames)
-        return batch.request_for(
-            material, experiment, density=float(experiment.density), depth_mm=float(experiment.depth_mm),
-            camera=experiment.camera, cell_mm=model.cell_mm, ppc=model.ppc,
-            slip_length_m=model.slip_length_m or None,  # sticking walls keep the key they always had
-            density_correction=model.density_correction, flow_rule=model.flow_rule,
-            image_size=(int(frames.shape[-1]), int(frames.shape[-2])), simulator=self.simulator, engine=model.engine,
-            kappa_pa=None if model.kappa_pa in (None, KAPPA_PA) else model.kappa_pa,  # the paper's: the keys they had
-            mu_pa=None if model.mu_pa in (None, MU_PA) else model.mu_pa,
-        )
+        size = np.shape(experiment.frames)
+        return batch.request_for(material, experiment, density=float(experiment.density), model=model,
+                                 depth_mm=float(experiment.depth_mm), camera=experiment.camera,
+                                 image_size=(int(size[-1]), int(size[-2])), simulator=self.simulator)
 
     @staticmethod
     def experiment_id(experiment) -> str:
@@ -178,7 +119,7 @@ class Forward:
     # -- simulations ----------------------------------------------------------------------------
     def evaluate(self, requests: Sequence[SimRequest], on_result: OnResult | None = None) -> list[SimResult]:
         """Results of ``requests`` in order: from the store where present, else simulated and stored."""
-        return batch.evaluate(requests, store=self.store, executor=self.executor, on_result=on_result)
+        return batch.evaluate(requests, store=self.store, executor=self.executor, on_result=self._counting(on_result))
 
     def results(self, material, experiments, model: ForwardModel, on_result: OnResult | None = None) -> list[SimResult]:
         """Simulated results of ``material`` in each of ``experiments`` with ``model``."""
@@ -187,6 +128,20 @@ class Forward:
     def silhouettes(self, material, experiments, model: ForwardModel) -> list:
         """Simulated silhouettes (F, H, W) of ``material`` in each of ``experiments``, None where it failed."""
         return [r.silhouettes if r.ok else None for r in self.results(material, experiments, model)]
+
+    def simulate(self, material, experiment, model: ForwardModel, *, dim: int = 3, progress=None):
+        """One simulation of ``material`` in ``experiment`` with ``model``, run in this process and returned whole
+        (:class:`mpm.solver.Simulation`: the particles of every frame beside the silhouettes), for a user who
+        watches one run (``virheo simulate``); not stored.  ``dim`` 2: plane strain.  ``progress(frames_done, 8)``
+        after each frame."""
+        from mpm import solver
+
+        request = self.request(material, experiment, model)
+        sim = solver.simulate(material, experiment, model=request.model, density=request.density,
+                              camera=experiment.camera, depth_mm=request.depth_mm,
+                              image_size=tuple(request.image_size), dim=dim, progress=progress)
+        self._ran[0] += 1
+        return sim
 
     # -- losses ---------------------------------------------------------------------------------
     def pair_losses(self, pairs: Iterable[tuple], model: ForwardModel, on_result: OnResult | None = None) -> np.ndarray:
@@ -198,7 +153,8 @@ class Forward:
             if id(e) not in ids:
                 ids[id(e)] = self.experiment_id(e)
         jobs = [(self.request(m, e, model), ids[id(e)], e.frames) for m, e in pairs]
-        return batch.evaluate_losses(jobs, store=self.store, executor=self.executor, on_result=on_result)
+        return batch.evaluate_losses(jobs, store=self.store, executor=self.executor,
+                                     on_result=self._counting(on_result))
 
     def losses(self, materials: Sequence, experiments: Sequence, model: ForwardModel,
                on_result: OnResult | None = None) -> np.ndarray:

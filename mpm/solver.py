@@ -9,6 +9,7 @@ plane strain at mid-depth, its frames extruded over the depth. One simulation at
 import contextlib
 import functools
 import math
+import os
 import sys
 import threading
 import time
@@ -21,15 +22,13 @@ from mpm import kernels as kn
 from mpm.engine import Engine, engine
 from mpm.engine_run import RunStats, frame_record, substeps
 from mpm import runtime
+from mpm.model import DEFAULT_CELL_MM, PARTICLES_PER_CELL, SLIP_LENGTH_M, ForwardModel  # noqa: F401 (re-exported)
 from mpm.solver_constants import NO_WARM_START, SimulationError
 from mpm import scene as sc
-from mpm.params import (DEFAULT_DEPTH_MM, FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material, check_flow_rule,
+from mpm.params import (DEFAULT_DEPTH_MM, FLOW_RULES, FPS, N_FRAMES, WORKING_SIZE, Material,
                         frame_times)
 
-DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/decisions.md#discretisation
 CFL = 0.5  # dt = CFL * dx / (c + |v|max); 0.6-0.65 still stable, 0.8 blows up (docs/method/forward-model.md)
-PARTICLES_PER_CELL = 1  # per axis (the reference implementation uses 2; see docs/method/forward-model.md)
-SLIP_LENGTH_M = 0.0  # Navier slip length of floor and walls (0: sticking); measured: docs/decisions.md#walls
 SUBSTEPS_PER_FRAME = 4  # the time step is re-evaluated this often per frame interval
 
 __all__ = ["simulate", "Simulation", "SimulationError", "DEFAULT_CELL_MM", "CFL", "PARTICLES_PER_CELL",
@@ -47,25 +46,13 @@ class Simulation:
     stats: dict = field(default_factory=dict)
 
 
-def _check_options(dim, flow_rule, precision, image_size):
+def _check_options(dim, precision, image_size):
     if dim not in (2, 3):
         raise ValueError(f"dim must be 2 or 3, got {dim!r}")
-    check_flow_rule(flow_rule)
     runtime.float_type_name(precision)
     from mpm.camera import image_size_of
 
     return image_size_of(image_size)
-
-
-def check_slip_length(b) -> float:
-    """The slip length as a float in metres; ValueError unless 0 <= b <= 1 m."""
-    try:
-        b = float(b)
-    except (TypeError, ValueError):
-        raise ValueError(f"slip length must be a number of metres, got {b!r}") from None
-    if not (math.isfinite(b) and 0.0 <= b <= 1.0):
-        raise ValueError(f"slip length must be within 0-1 m, got {b!r}")
-    return b
 
 
 COMPILE_NOTICE_S = 2.0  # a first launch still running after this long is compiling: say so on stderr
@@ -96,37 +83,41 @@ def _compile_notice(eng):
         timer.cancel()
 
 
-def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper", camera=None,
-             depth_mm=DEFAULT_DEPTH_MM, image_size=WORKING_SIZE, precision="f32", ppc=None, slip_length_m=None,
-             density_correction=False, kappa_pa=None, mu_pa=None, progress=None) -> Simulation:
+def simulate(material, setup, *, density, model: ForwardModel | None = None, dim=3, camera=None,
+             depth_mm=DEFAULT_DEPTH_MM, image_size=WORKING_SIZE, precision="f32", progress=None,
+             **model_fields) -> Simulation:
     """Run the dam-break for 1/3 s and return 8 frames (t = k/24 s) of visible particle positions.
 
     material: any object with .eta (Pa s^n), .n, .sigma_y (Pa); setup: any object with .width_mm,
-    .height_mm (20-70 mm); density in kg/m^3; cell_mm: grid cell width (default ``DEFAULT_CELL_MM``);
-    ppc: particles per cell per axis (default ``PARTICLES_PER_CELL``; the paper's discretisation is
-    cell_mm=1.26, ppc=2); depth_mm: distance between the side walls;
+    .height_mm (20-70 mm); density in kg/m^3; depth_mm: distance between the side walls;
+    model: the forward model (:class:`mpm.model.ForwardModel`: cell width, particles per cell per axis, the walls'
+    Navier slip length, the density correction, the flow rule, the elastic moduli, the engine), or its fields as
+    keywords (``cell_mm=1.26, ppc=2``: the paper's discretisation); unset fields take the solver's defaults;
     camera: a ``mpm.camera.Camera`` to also render silhouettes at image_size = (width, height);
-    slip_length_m: Navier slip length b of floor and walls in metres (default ``SLIP_LENGTH_M``; 0 = sticking;
-    the tangential wall velocity is b times the wall-normal shear rate);
-    density_correction: cap each particle's volume ratio at the one its neighbours' spacing implies where
-    particles crowd (``mpm.kernels``; measured: docs/method/forward-model.md, "Density correction");
-    kappa_pa, mu_pa: the elastic moduli in Pa (default the paper's, ``mpm.scene.KAPPA_PA`` and ``MU_PA``);
-    precision: "f32" or "f64"; flow_rule: one of ``FLOW_RULES``; progress: optional callable
-    ``progress(frames_done, 8)`` called after each simulated frame.
+    precision: "f32" or "f64"; progress: optional callable ``progress(frames_done, 8)`` called after each
+    simulated frame.
     The engine is ``mpm.runtime.engine_for(precision)`` (``$VIRHEO_ARCH``); ``stats["arch"]`` names it.
-    Raises ValueError for bad input (an unknown or unavailable engine too), SimulationError when the run blows up.
+    Raises ValueError for bad input (an unknown or unavailable engine too, and a model naming an engine other than
+    the one this process runs), SimulationError when the run blows up.
     """
+    if model is not None and model_fields:
+        raise TypeError(f"simulate() takes a model or its fields, not both ({', '.join(model_fields)})")
+    model = (ForwardModel(**model_fields) if model is None else model).resolved()
     mat = Material.of(material)
-    size = _check_options(dim, flow_rule, precision, image_size)
-    slip = check_slip_length(SLIP_LENGTH_M if slip_length_m is None else slip_length_m)
-    scene = sc.DamBreak.build(setup, density=density, cell_mm=DEFAULT_CELL_MM if cell_mm is None else cell_mm,
-                              depth_mm=depth_mm, dim=dim, ppc=PARTICLES_PER_CELL if ppc is None else ppc,
-                              kappa_pa=sc.KAPPA_PA if kappa_pa is None else kappa_pa,
-                              mu_pa=sc.MU_PA if mu_pa is None else mu_pa)
+    size = _check_options(dim, precision, image_size)
+    here = runtime.engine_for(precision)
+    if model.engine and model.engine != here:
+        raise ValueError(f"a simulation requested for the {model.engine} engine would run on {here} in this "
+                         f"process (VIRHEO_ARCH={os.environ.get('VIRHEO_ARCH', 'auto')}): give every worker the "
+                         f"requester's VIRHEO_ARCH")
+    scene = sc.DamBreak.build(setup, density=density, cell_mm=model.cell_mm, depth_mm=depth_mm, dim=dim, ppc=model.ppc,
+                              kappa_pa=sc.KAPPA_PA if model.kappa_pa is None else model.kappa_pa,
+                              mu_pa=sc.MU_PA if model.mu_pa is None else model.mu_pa)
     t_start, cpu_start = time.perf_counter(), time.process_time()
     start, name, tasks = runner(dim, precision)
     t_ready = time.perf_counter()
-    run = start(scene, mat.eta, mat.n, mat.sigma_y, flow_rule == "yue2015", slip, bool(density_correction))
+    slip = model.slip_length_m
+    run = start(scene, mat.eta, mat.n, mat.sigma_y, model.flow_rule == "yue2015", slip, model.density_correction)
     frames3, front, stats = run.execute(progress)
     t_sim = time.perf_counter()
     silhouettes = None
@@ -138,8 +129,8 @@ def simulate(material, setup, *, density, cell_mm=None, dim=3, flow_rule="paper"
     stats.update(
         setup_s=t_ready - t_start, sim_s=t_sim - t_ready, render_s=t_end - t_sim, wall_s=t_end - t_start,
         cpu_s=time.process_time() - cpu_start,
-        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, density_correction=bool(density_correction),
-        dim=dim, precision=precision, flow_rule=flow_rule,
+        cell_mm=scene.cell_m * 1e3, ppc=scene.ppc, slip_length_m=slip, density_correction=model.density_correction,
+        dim=dim, precision=precision, flow_rule=model.flow_rule,
         arch=name, tasks=tasks,
     )
     stats["particle_steps_per_s"] = stats["n_particles"] * stats["steps"] / max(stats["sim_s"], 1e-9)

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import atomic_write, canonical_json, digest, json_default, pack, unpack  # noqa: F401 (re-exported)
+from mpm.model import MODEL_FIELDS, ForwardModel
 from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE
 from mpm.store_index import INSERT_SIM, open_index
 
@@ -46,9 +47,10 @@ class SimRequest:
     """Everything that determines one dam-break simulation (SI, setup in mm).
 
     ``camera`` is the camera's ``to_dict()`` as canonical JSON text (None: no silhouettes);
-    ``simulator`` names the forward model as ``"module:function"`` and ``code_version`` its
-    source version, so that a changed solver never serves stale results; ``engine`` the engine that runs it
-    (``mpm.runtime.engine_for``), so that one engine's results never stand in for another's.
+    ``model`` the forward model, whole, with the engine that runs it (``mpm.runtime.engine_for``), so that one
+    engine's results never stand in for another's; ``simulator`` names the simulating function as
+    ``"module:function"`` and ``code_version`` its source version, so that a changed solver never serves stale
+    results.
     """
 
     eta: float
@@ -59,27 +61,20 @@ class SimRequest:
     density: float
     depth_mm: float = DEFAULT_DEPTH_MM
     camera: str | None = None
-    cell_mm: float | None = None
-    ppc: int | None = None
-    slip_length_m: float | None = None  # Navier slip length of floor and walls (None: the solver's default)
-    density_correction: bool = False  # mpm.kernels' density correction
+    model: ForwardModel = ForwardModel()  # keyed (ForwardModel.keyed): resolved, its engine named
     dim: int = 3
-    flow_rule: str = "paper"
     precision: str = "f32"
     image_size: tuple = WORKING_SIZE
     simulator: str = "mpm.batch:run_mpm"
     code_version: str = ""
-    engine: str = ""  # the engine that simulates it (mpm.runtime.ENGINES); "" in requests stored before engines
-    kappa_pa: float | None = None  # elastic moduli in Pa (None: the paper's, mpm.scene.KAPPA_PA and MU_PA)
-    mu_pa: float | None = None
 
     def to_dict(self) -> dict:
-        d = {f.name: getattr(self, f.name) for f in fields(self)}  # flat values: no deep copy needed
-        if not self.engine:  # a request stored before engines keeps its key (and never matches a new request)
+        """The request as flat JSON values: the model's fields beside the others, as requests always were; an
+        engine left open (requests stored before engines) and the paper's moduli are left out (the keys they had)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "model"}
+        d.update(self.model.to_dict())
+        if not d["engine"]:
             del d["engine"]
-        for name in ("kappa_pa", "mu_pa"):  # the paper's moduli: the keys they always had
-            if d[name] is None:
-                del d[name]
         d["image_size"] = list(self.image_size)
         d["camera"] = json.loads(self.camera) if self.camera else None
         return d
@@ -90,7 +85,9 @@ class SimRequest:
         d["image_size"] = tuple(d.get("image_size", WORKING_SIZE))
         cam = d.get("camera")
         d["camera"] = canonical_json(cam) if cam is not None else None
-        return cls(**d)
+        model = {k: d.pop(k) for k in MODEL_FIELDS if k in d}
+        model["engine"] = model.get("engine") or None
+        return cls(**d, model=ForwardModel(**model))
 
     @property
     def key(self) -> str:

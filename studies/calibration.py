@@ -117,8 +117,7 @@ def run_case(case: CalibrationCase, *, config: dict, forward, progress=None) -> 
 
     folder, truth, setup = Path(case.folder), case.truth, case.setup
     t0 = time.perf_counter()
-    store = forward.store
-    stored = store.count() if store is not None else 0
+    ran = forward.simulations_run
     # 1. footage, as an experiment folder (the estimate and the posterior read it like real footage)
     exp = film(truth, setup, folder, density=DENSITY, preset=footage_preset(config["preset"], case.setting),
                forward=forward)
@@ -150,7 +149,7 @@ def run_case(case: CalibrationCase, *, config: dict, forward, progress=None) -> 
         noise={k: summ["noise"][k] for k in ("n_eff", "loss_at_optimum", "discretisation", "emulator", "variance")},
         emulator=summ["emulator"],
         wall_seconds={"estimate": t_est, "total": time.perf_counter() - t0},
-        simulations_run=(store.count() - stored) if store is not None else None,
+        simulations_run=forward.simulations_run - ran,
     )
 
 

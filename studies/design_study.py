@@ -192,14 +192,13 @@ def run_case(case: DesignCase, *, config: dict, forward, theta, progress=None) -
 
     index, truth, first = case.index, case.truth, case.first
     t0 = time.perf_counter()
-    store = forward.store
     footage = E.emulate(truth, [first], density=DENSITY, preset=config["preset"], forward=forward)[0]
     frames = int(len(footage.frames))
     seed = case_seed(config["seed"], index)
     runs, stage_1 = {}, []
     for name in config["criteria"]:
         prop = proposer(name, seed=config["seed"], index=index, frames_per_setup=frames, theta=theta)
-        before = store.count()
+        before = forward.simulations_run
         t1 = time.perf_counter()
         est, _ = E.emulate_virheometry(truth, first, n_setups=2, preset=config["preset"], seed=seed, density=DENSITY,
                                        forward=forward, generations=config["generations"], progress=progress,
@@ -211,7 +210,7 @@ def run_case(case: DesignCase, *, config: dict, forward, theta, progress=None) -
         runs[name] = CriterionRun(
             second_setup=est.setups[1] if len(est.setups) > 1 else None, estimate=est.material,
             e_rel=e_rel(truth, est.material), loss=est.loss, simulations=est.simulations,
-            simulations_stage_2=sum(s.simulations for s in est.stages[1:]), simulations_run=store.count() - before,
+            simulations_stage_2=sum(s.simulations for s in est.stages[1:]), simulations_run=forward.simulations_run - before,
             fallback=prop.fallbacks.get(1), belief=None if belief is None else belief.to_dict(),
             without_belief=eig.without_belief.get(1) if eig else None, wall_seconds=time.perf_counter() - t1)
     return DesignRecord(case=index, config=config, truth=truth, first_setup=str(first), frames_per_setup=frames,

@@ -114,8 +114,7 @@ def run_case(case: LawCase, *, config: dict, forward, progress=None) -> LawRecor
     from similarity.posterior import analyse
 
     folder, truth = Path(case.folder), case.truth
-    store = forward.store
-    stored = store.count() if store is not None else 0
+    ran = forward.simulations_run
     seed = config["seed"] + case.index
     clock = {"start": time.perf_counter()}
     first = _film(truth, case.setup, folder, config, forward)
@@ -141,7 +140,7 @@ def run_case(case: LawCase, *, config: dict, forward, progress=None) -> LawRecor
     return LawRecord(case=case.index, config=config, law=case.law, truth=truth,
                      setups=[str(case.setup), str(second)], estimate=est.material, e_rel=e_rel(truth, est.material),
                      evidence=a.summary.evidence.to_dict(), wall_seconds=wall,
-                     simulations_run=(store.count() - stored) if store is not None else None)
+                     simulations_run=forward.simulations_run - ran)
 
 
 # -- the study --------------------------------------------------------------------------------------------

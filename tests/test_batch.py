@@ -100,9 +100,9 @@ def test_requests_name_the_engine_that_simulates_them(monkeypatch):
                            ("cpu", "native", "taichi-cpu")):
         monkeypatch.setenv("VIRHEO_ARCH", arch)
         req = _requests(n=1)[0]
-        assert req.engine == f32 and req.to_dict()["engine"] == f32
+        assert req.model.engine == f32 and req.to_dict()["engine"] == f32
         assert batch.request_for(Material(1.0, 0.5, 2.0), Setup(30, 40), density=1000.0, precision="f64",
-                                 simulator=SIM).engine == f64
+                                 simulator=SIM).model.engine == f64
         keys[arch] = req.key
     assert keys["taichi-cpu"] != keys["native"] == keys["cpu"]
     monkeypatch.setenv("VIRHEO_ARCH", "gpu")
@@ -117,7 +117,8 @@ def test_a_worker_on_another_engine_refuses_the_request(monkeypatch):
     from dataclasses import replace
 
     monkeypatch.setenv("VIRHEO_ARCH", "taichi-cpu")
-    req = replace(_requests(batch.DEFAULT_SIMULATOR, n=1)[0], engine="native")
+    req = _requests(batch.DEFAULT_SIMULATOR, n=1)[0]
+    req = replace(req, model=replace(req.model, engine="native"))
     with pytest.raises(ValueError, match="requested for the native engine would run on taichi-cpu") as e:
         batch.run_one(req)
     assert "\n" not in str(e.value)

@@ -231,12 +231,12 @@ def test_footage_preset_finishes_at_the_papers_discretisation(tmp_path):
     # the stored requests: every simulation of the finishing stage (its warm start included) ran at the
     # paper's discretisation, and only those did
     stored = store.requests()
-    finished = [r for r in stored if (r.cell_mm, r.ppc) == (PAPER_MODEL.cell_mm, PAPER_MODEL.ppc)]
+    finished = [r for r in stored if (r.model.cell_mm, r.model.ppc) == (PAPER_MODEL.cell_mm, PAPER_MODEL.ppc)]
     assert len(finished) == fine.simulations == 7 * 2 + footage.finish_generations * 7 * 2
-    assert all((r.cell_mm, r.ppc) == (footage.cell_mm, footage.ppc) for r in stored if r not in finished)
+    assert all((r.model.cell_mm, r.model.ppc) == (footage.cell_mm, footage.ppc) for r in stored if r not in finished)
     # ... and no stage slips or corrects the density
-    assert {r.slip_length_m for r in stored} == {None}
-    assert not any(r.density_correction for r in stored)
+    assert {r.model.slip_length_m for r in stored} == {None}
+    assert not any(r.model.density_correction for r in stored)
     # the answer and its loss are the finishing stage's, recomputed from the store at that discretisation
     assert est.material == fine.material and est.model == footage.final.resolved() == fine.model
     assert (est.model.cell_mm, est.model.ppc) == (PAPER_MODEL.cell_mm, PAPER_MODEL.ppc)
@@ -291,8 +291,8 @@ def test_a_run_is_reread_with_the_model_it_was_estimated_with(tmp_path, shared_d
     for model in (run.preset.search, run.preset.final):
         assert model.slip_length_m == slip and model.density_correction == corrected
     req = run.forward.request(run.estimate, run.experiments[0], run.preset.final)
-    assert req.slip_length_m == (slip or None)  # sticking requests keep the store key they always had
-    assert req.density_correction == corrected
+    assert req.model.slip_length_m == (slip or None)  # sticking requests keep the store key they always had
+    assert req.model.density_correction == corrected
 
 
 def test_search_coordinates_are_log_eta_and_invert():

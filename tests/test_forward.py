@@ -11,7 +11,7 @@ import pytest
 
 from mpm import batch, runtime
 from mpm.forward import Forward, ForwardModel, blank_experiment
-from mpm.store import Store
+from mpm.store import SimRequest, Store
 from similarity.cma_stage import Stage
 from mpm.params import Material, Setup
 
@@ -69,11 +69,11 @@ def test_requests_name_the_model_and_the_engine(tmp_path):
     m = Material(2.0, 0.5, 5.0)
     req = forward.request(m, shot, ForwardModel(5.0))
     # the seam's request is the one batch.request_for builds from the resolved model (store keys unchanged)
-    assert req == batch.request_for(m, shot, density=1000.0, camera=shot.camera, cell_mm=5.0, ppc=1,
+    assert req == batch.request_for(m, shot, density=1000.0, camera=shot.camera, model=ForwardModel(5.0, 1),
                                     image_size=SIZE, simulator=SIM)
-    assert req.engine == runtime.engine_for("f32") and req.slip_length_m is None and req.flow_rule == "paper"
+    assert req.model.engine == runtime.engine_for("f32") and req.model.slip_length_m is None and req.model.flow_rule == "paper"
     pinned = forward.request(m, shot, ForwardModel(5.0, engine="taichi-cpu", slip_length_m=1e-3))
-    assert pinned.engine == "taichi-cpu" and pinned.slip_length_m == 1e-3 and pinned.key != req.key
+    assert pinned.model.engine == "taichi-cpu" and pinned.model.slip_length_m == 1e-3 and pinned.key != req.key
     assert forward.with_simulator(None).request(m, shot, ForwardModel(5.0)).simulator == batch.DEFAULT_SIMULATOR
 
 
@@ -85,16 +85,21 @@ def test_losses_through_the_seam_equal_batch_evaluate_losses(tmp_path):
     seen = []
     with Forward(Store(tmp_path / "seam"), simulator=SIM) as forward:
         grid = forward.losses(materials, shots, model, on_result=lambda req, res, cached: seen.append(cached))
-    jobs = [(batch.request_for(m, e, density=e.density, camera=e.camera, cell_mm=5.0, ppc=1, image_size=SIZE,
+    jobs = [(batch.request_for(m, e, density=e.density, camera=e.camera, model=ForwardModel(5.0, 1), image_size=SIZE,
                                simulator=SIM), batch.experiment_id(e.frames, e.name), e.frames)
             for m in materials for e in shots]
     direct = batch.evaluate_losses(jobs, store=Store(tmp_path / "direct"), executor=batch.InlineExecutor())
     assert grid.shape == (3, 2) and np.array_equal(grid.ravel(), direct)
     assert grid[1].tolist() == [0.0, 0.0] and np.all(grid[[0, 2]] > 0)  # the truth fits its own footage exactly
-    assert seen == [False] * 6
+    assert seen == [False] * 6 and forward.simulations_run == 6
     again = Forward(tmp_path / "seam", simulator=SIM)  # from the store, nothing simulated
     assert np.array_equal(again.losses(materials, shots, model, on_result=lambda *a: seen.append(a[2])), grid)
-    assert seen[6:] == [True] * 6
+    assert seen[6:] == [True] * 6 and again.simulations_run == 0
+    # a copy with another simulator counts into the same total; a simulation served by the store counts nothing
+    other = again.with_simulator(SIM)
+    other.results(Material(2.0, 0.7, 3.0), shots[:1], model)
+    other.results(Material(2.0, 0.7, 3.0), shots[:1], model)
+    assert again.simulations_run == other.simulations_run == 1
 
 
 def _brute_force(store, forward, experiments, model):
@@ -185,7 +190,7 @@ def test_forward_closes_only_what_it_opened(tmp_path):
     (dict(cell_mm=0.01), "cell_mm 0.01 mm lies outside the accepted range 0.2..10 mm"),
     (dict(cell_mm=11.0), "cell_mm 11 mm lies outside"),
     (dict(cell_mm=float("nan")), "cell_mm nan mm lies outside"),
-    (dict(slip_length_m=-1e-3), "slip_length_m=-0.001 must be within 0..1 m"),
+    (dict(slip_length_m=-1e-3), "slip length -0.001 m lies outside the accepted range 0..1 m"),
     (dict(engine="gpu9000"), "unknown engine 'gpu9000'"),
     (dict(flow_rule="nope"), "nope"),
 ])
@@ -232,7 +237,9 @@ def test_the_model_carries_the_elastic_moduli_to_the_worker(tmp_path):
     stiff_model = ForwardModel(5.0, 1, kappa_pa=10 * KAPPA_PA, mu_pa=10 * MU_PA)
     assert ForwardModel.from_dict(stiff_model.to_dict()) == stiff_model
     stiff = forward.request(m, shot, stiff_model)
-    assert (stiff.kappa_pa, stiff.mu_pa) == (1e5, 1e4) and stiff.key != default.key
+    assert (stiff.model.kappa_pa, stiff.model.mu_pa) == (1e5, 1e4) and stiff.key != default.key
+    # the model travels whole: the request holds it keyed, and the stored JSON gives the same request back
+    assert stiff.model == stiff_model.keyed() and SimRequest.from_dict(stiff.to_dict()) == stiff
     with pytest.raises(ValueError, match=r"kappa_pa 1e\+09 Pa lies outside the accepted range 100\.\.1e\+06 Pa"):
         ForwardModel(kappa_pa=1e9)
     soft, hard = (batch.run_one(r) for r in (default, stiff))

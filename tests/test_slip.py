@@ -8,6 +8,7 @@ from mpm import scene as sc
 from mpm import engine, solver
 from mpm.camera import Camera
 from mpm.loss import iou
+from mpm.model import ForwardModel
 
 RUNNY = NS(eta=0.55, n=0.81, sigma_y=1.95)  # the Worcestershire sauce of Table 1, a thin runny film
 SETUP = NS(width_mm=30, height_mm=20)
@@ -49,7 +50,7 @@ def test_the_coating_inside_slipping_walls_stays_unstrained(monkeypatch):
 def test_bad_slip_length():
     for b in (-1e-3, float("nan"), "x", 2.0):
         with pytest.raises(ValueError, match="slip length"):
-            solver.check_slip_length(b)
+            ForwardModel(slip_length_m=b)
 
 
 class _FloorOnly(sc.DamBreak):

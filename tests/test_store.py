@@ -7,14 +7,17 @@ import textwrap
 import numpy as np
 import pytest
 
+from mpm.model import MODEL_FIELDS, ForwardModel
 from mpm.store import SimRequest, SimResult, Store, pack, unpack
 
 
 def _req(**kw):
+    """A request; the model's fields among ``kw`` go into its model."""
     base = dict(eta=1.5, n=0.7, sigma_y=10.0, width_mm=30.0, height_mm=40.0, density=1025.0,
                 camera='{"fov_deg":36.0}', cell_mm=5.0, simulator="fake_forward:simulate", code_version="v1")
     base.update(kw)
-    return SimRequest(**base)
+    model = ForwardModel(**{k: base.pop(k) for k in MODEL_FIELDS if k in base})
+    return SimRequest(**base, model=model)
 
 
 def test_key_is_stable_and_sensitive_to_every_field():
@@ -24,21 +27,21 @@ def test_key_is_stable_and_sensitive_to_every_field():
     for change in (dict(eta=1.5000001), dict(n=0.71), dict(sigma_y=10.5), dict(width_mm=31.0), dict(height_mm=41.0),
                    dict(density=1000.0), dict(depth_mm=41.5), dict(camera='{"fov_deg":36.1}'), dict(cell_mm=2.5),
                    dict(ppc=2),
-                   dict(dim=2), dict(flow_rule="yue"), dict(precision="f64"), dict(image_size=(480, 270)),
+                   dict(dim=2), dict(flow_rule="yue2015"), dict(precision="f64"), dict(image_size=(480, 270)),
                    dict(simulator="x:y"), dict(code_version="v2"), dict(engine="native")):
         assert _req(**change).key != r.key, change
     assert _req(engine="native").key != _req(engine="taichi-cpu").key
 
 
 def test_a_request_stored_before_engines_loads_keeps_its_key_and_matches_no_new_request(tmp_path):
-    """A request written before requests named their engine (no "engine" field) reads back with engine "", under
+    """A request written before requests named their engine (no "engine" field) reads back with engine None, under
     the key it was stored with (so that an index rebuilt from the array files finds it); a request naming any
     engine differs from it, so no engine is served another's, or an unknown engine's, results."""
     from mpm.files import digest
 
     old = {k: v for k, v in _req().to_dict().items() if k != "engine"}
     loaded = SimRequest.from_dict(old)
-    assert loaded.engine == "" and loaded.key == digest(old)
+    assert loaded.model.engine is None and loaded.key == digest(old)
     store = Store(tmp_path)
     store.put(loaded, SimResult(None, np.zeros(8), np.arange(1, 9) / 24, {"steps": 1}))
     for engine in ("native", "taichi-cpu", "cuda"):

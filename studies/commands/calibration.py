@@ -32,13 +32,12 @@ def run(args: argparse.Namespace) -> int:
     check_run_options(args)
     settings = C.SETTINGS if args.setting == "both" else (args.setting,)
     with open_run(args) as run:
-        stored = run.forward.store.count()
         result = C.run_study(run.out, cases=args.cases, settings=settings, preset=args.preset,
                              generations=args.generations, new_simulations=args.new_simulations,
                              half_width=args.half_width, seed=args.seed, min_ess=args.min_ess,
                              max_steps=args.max_steps, forward=run.forward, progress=run.progress,
                              noise_count=args.noise_count)
-        simulated = run.forward.store.count() - stored
+        simulated = run.forward.simulations_run
     print((run.out / "calibration.md").read_text())
     for s, v in result["summary"].items():
         print(f"{s}: truth in the 90 % HPD region in {v['inside_90']['hpd']}/{v['cases']} cases")

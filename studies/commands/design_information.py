@@ -46,9 +46,8 @@ def run(args: argparse.Namespace) -> int:
     check_options(**options)  # before any folder is made
     check_run_options(args)
     with open_run(args) as run:
-        before = run.forward.store.count()
         result = run_study(run.out, forward=run.forward, progress=run.progress, **options)
-        simulated = run.forward.store.count() - before
+        simulated = run.forward.simulations_run
     print((run.out / "design_information.md").read_text())
     for key in ("verdict_default", "verdict_recommended"):
         v = result["summary"].get(key)

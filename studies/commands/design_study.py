@@ -27,10 +27,9 @@ def run(args: argparse.Namespace) -> int:
 
     check_run_options(args)
     with open_run(args) as run:
-        stored = run.forward.store.count()
         result = D.run_study(run.out, cases=args.cases, preset=args.preset, generations=args.generations,
                              seed=args.seed, forward=run.forward, progress=run.progress)
-        simulated = run.forward.store.count() - stored
+        simulated = run.forward.simulations_run
     s = result["summary"]
     print((run.out / "design.md").read_text())
     print("E_rel <= {:g} after two setups: ".format(s["good_threshold"]) + ", ".join(

@@ -54,6 +54,7 @@ def _mask_png(mask: np.ndarray, path: Path) -> None:
 def run(args) -> int:
     from mpm import camera as cam
     from mpm import experiment as xp
+    from mpm.forward import Forward, ForwardModel, blank_experiment
     from mpm.ranges import check_cell_mm, check_density, check_ppc, check_simulable
     from mpm.params import Material, Setup
     from studies.report import overlay_pngs, write_json
@@ -86,18 +87,18 @@ def run(args) -> int:
     if args.density is not None:
         check_density(args.density, "--density")
     if args.cell_mm is not None:
-        check_cell_mm(args.cell_mm, "--cell-mm")
-    if args.depth_mm is not None and not args.depth_mm > 0:
-        raise ValueError(f"--depth-mm {args.depth_mm:g} must be > 0 mm")
+        check_cell_mm(args.cell_mm, "--cell-mm")  # the model's own checks, naming the option
     if args.ppc is not None:
         check_ppc(args.ppc, "--ppc")
+    if args.depth_mm is not None and not args.depth_mm > 0:
+        raise ValueError(f"--depth-mm {args.depth_mm:g} must be > 0 mm")
     camera = exp.camera if exp else (cam.Camera.from_xml(args.camera) if args.camera else cam.Camera.default())
     density = args.density or (exp.density if exp else DEFAULT_DENSITY_KG_M3)
     depth_mm = args.depth_mm or (exp.depth_mm if exp else DEFAULT_DEPTH_MM)
+    model = ForwardModel(cell_mm=args.cell_mm, ppc=args.ppc, flow_rule=args.flow_rule)
     check_engine()
     out.mkdir(parents=True, exist_ok=True)
 
-    import mpm
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
     t0 = time.perf_counter()
@@ -108,8 +109,9 @@ def run(args) -> int:
         def progress(frame: int, total: int) -> None:
             bar.update(task, completed=frame, total=total)
 
-        sim = mpm.simulate(material, setup, density=density, cell_mm=args.cell_mm, ppc=args.ppc, dim=args.dim,
-                           flow_rule=args.flow_rule, camera=camera, depth_mm=depth_mm, progress=progress)
+        shot = blank_experiment(setup, density=density, camera=camera, depth_mm=depth_mm, name="simulate")
+        with Forward() as forward:
+            sim = forward.simulate(material, shot, model, dim=args.dim, progress=progress)
         bar.update(task, completed=8)
     wall = time.perf_counter() - t0
 
