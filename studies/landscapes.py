@@ -11,8 +11,10 @@ evaluated
 * on the 18-point finite-difference stencil of :mod:`similarity.fd_hessian` with step ``fd_step``,
   giving the Hessian, its eigenvalues, the loss normal q_max and the condition number.
 
-Every simulation goes through :meth:`mpm.forward.Forward.pair_losses` and the store, all pairs in one
-batch: a killed study re-run with the same arguments serves what finished from the store. With
+The study runs on :class:`studies.study.Study`, pair by pair: each pair's footage, then its block and stencil in
+one batch through :meth:`mpm.forward.Forward.pair_losses` and the store; a finished pair is kept in
+``cases/pair_NNN/case.json``, and a killed study re-run with the same arguments reads those back and serves
+from the store what the unfinished pair had simulated. With
 ``grid=3`` and ``half_width=fd_step`` the block contains the stencil, so a pair costs 26 simulations
 plus its reference.
 
@@ -23,30 +25,31 @@ and scored by eq. 43 against the landscape, refined by trilinear interpolation t
 ``virheo theta fit`` re-matches every landscape from its stored losses, so a fit never depends on the
 match stored in a study folder.
 
-Folder layout: ``study.json`` (the configuration, materials and setups), ``landscapes.json`` (per pair:
-loss values, Hessian, spectrum, matching), ``landscape_*.png`` (Fig. 6-style slices).
+Folder layout: ``study.json`` (the configuration, materials and setups), ``cases/pair_NNN/case.json`` (one
+finished pair), ``landscapes.json`` (per pair: loss values, Hessian, spectrum, matching; the summary),
+``landscapes.md`` (the table) and ``landscape_*.png`` (Fig. 6-style slices).
 """
 from __future__ import annotations
 
 import json
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from mpm.files import read_json
+from mpm.files import JsonRecord, read_json
 from mpm.params import DEFAULT_DENSITY_KG_M3, Material, Setup
 from similarity import estimate as E
 from similarity.emulation import probe_pairs
 from similarity.fd_hessian import angle_deg, hessian_from_stencil, spectrum, stencil
 from similarity.normals import P_SEARCH, normals_at
 from similarity.space import denormalize, normalize
-from similarity.progress import Message, simulation_tick
+from similarity.progress import simulation_tick
 from studies.conditioning import conditioning  # noqa: F401 (re-exported)
 from studies.landscape_plots import plot_slices
 from studies.report import write_json
 from studies.sampling import poisson_disk, random_setups  # noqa: F401 (poisson_disk re-exported)
+from studies.study import Study
 from surrogate import theta_fit
 
 STUDY_FILE = "study.json"
@@ -159,11 +162,128 @@ def match(material: Material, losses, grid: int, half_width: float, c_pa=C_SEARC
 
 
 # -- the study -----------------------------------------------------------------------------------------
-def _prepare(out: Path, config: StudyConfig) -> list[Pair]:
+@dataclass(frozen=True)
+class LandscapeCase:
+    """One (M, S) pair of the study and the folder its case.json goes to."""
+
+    index: int
+    pair: Pair
+    folder: Path
+
+
+@dataclass
+class LandscapeRecord(JsonRecord):
+    """One finished pair: the block's losses, the FD Hessian and its spectrum (None where a probe failed), the
+    match to the plane-Poiseuille normal (None for a flat landscape) and the simulations the pair needed."""
+
+    config: dict
+    material: Material
+    setup: Setup
+    losses: list
+    hessian: list | None
+    q_max: list | None
+    eigenvalues: list | None
+    condition: float | None
+    match: dict | None
+    simulations: int
+
+    READERS = {"material": lambda d: Material(**d), "setup": lambda d: Setup(**d)}
+
+    def pair_dict(self) -> dict:
+        """The pair as ``landscapes.json`` lists it."""
+        d = self.to_dict()
+        return {k: d[k] for k in ("material", "setup", "losses", "hessian", "q_max", "eigenvalues", "condition",
+                                  "match")}
+
+    @property
+    def angle_fd_deg(self) -> float | None:
+        return None if self.match is None else self.match.get("angle_fd_deg")
+
+
+@dataclass
+class LandscapeSummary(JsonRecord):
+    pairs: int
+    matched: int  # pairs with a landscape to match and an FD normal to compare with
+    median_angle_fd_deg: float | None  # FD loss normal against the matched plane-Poiseuille normal
+    simulations: int
+
+
+class LandscapeStudy(Study):
+    """The study case by case: footage of M in S, then the block and the FD stencil around M in one batch."""
+
+    name = "landscapes"
+    record = LandscapeRecord
+    case_files = ("cases/pair_*/case.json",)
+
+    def __init__(self, out, config: StudyConfig | None = None, *, plots: int = 0):
+        super().__init__(out, None if config is None else config.to_dict())
+        self.study, self.plot_count = config, plots
+
+    def cases(self):
+        return [LandscapeCase(i, p, self.out / "cases" / f"pair_{i:03d}") for i, p in enumerate(sample_pairs(self.study))]
+
+    def announce(self, case) -> str:
+        return f"pair {case.index + 1}: {case.pair.material} in {case.pair.setup} mm"
+
+    def run_case(self, case, *, forward, progress=None) -> LandscapeRecord:
+        config, (material, setup) = self.study, (case.pair.material, case.pair.setup)
+        preset = E.get_preset(config.preset)
+        footage = E.emulate(material, [setup], density=config.density, preset=preset, forward=forward)[0]
+        block, probes = grid_offsets(config.grid, config.half_width), stencil(config.fd_step)
+        jobs = probe_pairs([(material, footage)], np.vstack([block, probes]))
+        row = forward.pair_losses(jobs, preset.final, simulation_tick(progress))
+        grid_losses, fd = row[: len(block)], row[len(block):]
+        hessian, spec = None, {"q_max": None, "eigenvalues": None, "condition": None}
+        if np.all(np.isfinite(fd)):
+            hessian = hessian_from_stencil(fd, config.fd_step)
+            spec = spectrum(hessian).to_dict()
+        mt = None
+        if np.any(np.isfinite(grid_losses)) and np.nanmax(grid_losses) > 0:
+            mt = match(material, grid_losses, config.grid, config.half_width)
+            if spec["q_max"] is not None:
+                mt["angle_fd_deg"] = float(angle_deg(spec["q_max"], mt["q_pp"]))
+        simulations = len({forward.request(m, e, preset.final).key for m, e in jobs}) + 1  # + the footage
+        return LandscapeRecord(self.config, material, setup, grid_losses.tolist(),
+                               None if hessian is None else hessian.tolist(), spec["q_max"], spec["eigenvalues"],
+                               spec["condition"], mt, simulations)
+
+    def summary(self, records) -> LandscapeSummary:
+        angles = [r.angle_fd_deg for r in records if r.angle_fd_deg is not None]
+        return LandscapeSummary(len(records), len(angles), float(np.median(angles)) if angles else None,
+                                sum(r.simulations for r in records))
+
+    def table(self, records, summary) -> str:
+        lines = ["| pair | eta [Pa s^n] | n | sigma_y [Pa] | setup [mm] | condition | C [Pa] | angle FD vs PP [deg] |",
+                 "|---|---|---|---|---|---|---|---|"]
+        for i, r in enumerate(records):
+            m, c = r.material, r.match or {}
+            cond = "-" if r.condition is None else f"{r.condition:.3g}"
+            angle = "-" if r.angle_fd_deg is None else f"{r.angle_fd_deg:.1f}"
+            lines.append(f"| {i} | {m.eta:.3g} | {m.n:.3g} | {m.sigma_y:.3g} | {r.setup} | {cond} | "
+                         f"{c.get('C_Pa', float('nan')):.3g} | {angle} |")
+        median = "-" if summary.median_angle_fd_deg is None else f"{summary.median_angle_fd_deg:.1f} deg"
+        return "\n".join(lines + ["", f"{summary.pairs} pairs, {summary.simulations} simulations; median angle "
+                                       f"between the FD loss normal and the matched Poiseuille normal: {median}", ""])
+
+    def plots(self, records, summary) -> None:
+        block = grid_offsets(self.study.grid, self.study.half_width)
+        for k, rec in enumerate(records[: self.plot_count]):
+            if rec.match is not None:
+                plot_slices(self.out / f"landscape_{k:02d}.png", rec.pair_dict(), block, self.study.grid)
+
+    def result(self, records, summary, wall_seconds) -> dict:
+        config = self.study
+        return {"format": FORMAT, "config": config.to_dict(),
+                "offsets": grid_offsets(config.grid, config.half_width).tolist(),
+                "fd_stencil": stencil(config.fd_step).tolist(), "pairs": [r.pair_dict() for r in records],
+                "simulations": summary.simulations, "summary": summary.to_dict(), "wall_seconds": wall_seconds}
+
+
+def _prepare(out: Path, config: StudyConfig) -> None:
+    """study.json: the configuration and the pairs (a folder made with another configuration is refused)."""
     out.mkdir(parents=True, exist_ok=True)
-    pairs = sample_pairs(config)
     meta = {"format": FORMAT, "config": config.to_dict(),
-            "pairs": [{"material": p.material.to_dict(), "setup": p.setup.to_dict()} for p in pairs]}
+            "pairs": [{"material": p.material.to_dict(), "setup": p.setup.to_dict()} for p in sample_pairs(config)]}
     path = out / STUDY_FILE
     if path.exists():
         old = json.loads(path.read_text())
@@ -171,63 +291,14 @@ def _prepare(out: Path, config: StudyConfig) -> list[Pair]:
             raise ValueError(f"{out} holds a landscape study with another configuration; use another --out")
     else:
         write_json(path, meta)
-    return pairs
 
 
 def run(out, config: StudyConfig, *, forward, progress=None, plots: int = 3) -> dict:
-    """Run (or resume) a landscape study in folder ``out``; returns the content of ``landscapes.json``."""
+    """Run (or resume, pair by pair) a landscape study in folder ``out``; returns the content of
+    ``landscapes.json``."""
     config.check()
-    out = Path(out)
-    t0 = time.perf_counter()
-    pairs = _prepare(out, config)
-    preset = E.get_preset(config.preset)
-    say = (lambda text: progress(Message(text))) if progress else (lambda text: None)
-
-    # ground-truth footage, one batch for all pairs
-    by_material: dict = {}
-    for i, p in enumerate(pairs):
-        by_material.setdefault(p.material, []).append(i)
-    say(f"{len(pairs)} pairs: simulating the ground-truth footage")
-    frames = [None] * len(pairs)
-    for m, idx in by_material.items():
-        shots = E.emulate(m, [pairs[i].setup for i in idx], density=config.density, preset=preset, forward=forward)
-        for i, e in zip(idx, shots):
-            frames[i] = e
-
-    block = grid_offsets(config.grid, config.half_width)
-    probes = stencil(config.fd_step)
-    offsets = np.vstack([block, probes])
-    jobs = probe_pairs([(p.material, ref) for p, ref in zip(pairs, frames)], offsets)
-    say(f"{len(jobs)} landscape probes ({len(offsets)} per pair)")
-    tick = simulation_tick(progress)
-    losses = forward.pair_losses(jobs, preset.final, tick).reshape(len(pairs), -1)
-
-    records = []
-    for p, row in zip(pairs, losses):
-        grid_losses, fd = row[: len(block)], row[len(block):]
-        rec = {"material": p.material.to_dict(), "setup": p.setup.to_dict(), "losses": row[: len(block)].tolist()}
-        if np.all(np.isfinite(fd)):
-            spec = spectrum(hessian_from_stencil(fd, config.fd_step))
-            rec |= {"hessian": hessian_from_stencil(fd, config.fd_step).tolist(), **spec.to_dict()}
-        else:
-            rec |= {"hessian": None, "q_max": None, "eigenvalues": None, "condition": None}
-        if np.any(np.isfinite(grid_losses)) and np.nanmax(grid_losses) > 0:
-            mt = match(p.material, grid_losses, config.grid, config.half_width)
-            rec["match"] = mt
-            if rec["q_max"] is not None:
-                rec["match"]["angle_fd_deg"] = float(angle_deg(rec["q_max"], mt["q_pp"]))
-        else:
-            rec["match"] = None
-        records.append(rec)
-    simulations = len({forward.request(m, e, preset.final).key for m, e in jobs}) + len(pairs)
-    result = {"format": FORMAT, "config": config.to_dict(), "offsets": block.tolist(),
-              "fd_stencil": probes.tolist(), "pairs": records, "simulations": simulations,
-              "wall_seconds": time.perf_counter() - t0}
-    write_json(out / RESULT_FILE, result)
-    for k, rec in enumerate(records[:plots]):
-        if rec["match"] is not None:
-            plot_slices(out / f"landscape_{k:02d}.png", rec, block, config.grid)
-    return result
+    _prepare(Path(out), config)
+    return LandscapeStudy(out, config, plots=plots).run(forward=forward, progress=progress)
 
 
 def load(folder) -> dict:

@@ -92,6 +92,9 @@ def test_killed_study_resumes_without_recomputing(tmp_path, monkeypatch):
     assert len(first) + len(done) == res["simulations"] == 2 * (8 + 18 + 1)
     again = LS.run(tmp_path / "study", config, forward=Forward(store, simulator=SIM), plots=0)
     assert len(first) + len(done) == again["simulations"]  # third run: everything from the store
+    # pair by pair on the Study skeleton: one case.json per pair, the table beside the JSON
+    assert sorted(p.parent.name for p in (tmp_path / "study").glob("cases/*/case.json")) == ["pair_000", "pair_001"]
+    assert res["summary"]["pairs"] == 2 and "| pair |" in (tmp_path / "study" / "landscapes.md").read_text()
     assert (tmp_path / "study" / "landscape_00.png").stat().st_size > 1000
     rec = res["pairs"][0]
     assert len(rec["losses"]) == 8 and len(rec["q_max"]) == 3 and rec["match"]["C_Pa"] > 0
