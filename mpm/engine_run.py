@@ -2,8 +2,9 @@
 ``mpm.solver._Run`` and the native ``mpm.native_engine.NativeRun``), the time-step schedule, the frame record and the
 run's statistics.  No Taichi here.
 
-The native engine runs the same schedule in C++ (mpm/native/kernel.h, ``Engine::run``); the engine-agreement tests
-and bench compare the step counts of the two engines run for run.
+The native engine runs the same schedule in C++ (``substeps`` in mpm/native/types.h, which ``Engine::run`` calls);
+tests/test_solver_paths.py compares the two bit for bit, and the engine-agreement tests and bench compare the step
+counts of the two engines run for run.
 """
 from __future__ import annotations
 

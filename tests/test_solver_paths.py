@@ -140,3 +140,37 @@ def test_native_constants_are_the_python_ones():
     assert (kernels.HIDDEN, kernels.PLASTIC, kernels.FROZEN, kernels.ERRORS) == (C.HIDDEN, C.PLASTIC, C.FROZEN, C.ERRORS)
     # the C++ sources use the named codes, not bare numbers
     assert not re.search(r"(res\.error = |return )[1-4];", text)
+
+
+def test_native_time_step_schedule_is_the_python_one():
+    """The CFL schedule is written once per language: the C++ ``substeps`` (types.h, which the engine's run loop
+    calls) gives the Python ``mpm.engine_run.substeps``'s steps and step bit for bit, over times, speeds, cells and
+    wave speeds from a crawl to the speed limit (the cell width as the engine holds it, in float32)."""
+    from types import SimpleNamespace as NS
+
+    from mpm import native_engine
+    from mpm.engine_run import substeps
+    from mpm.params import N_FRAMES, frame_times
+
+    if not native_engine.available():
+        pytest.skip(native_engine.why_unavailable())
+    from mpm import _native
+
+    rng = np.random.default_rng(0)
+    ends = frame_times()
+    checked = 0
+    for _ in range(400):
+        k = int(rng.integers(N_FRAMES))
+        t = float(rng.uniform(0.0, ends[k]))
+        scene = NS(cell_m=float(np.float32(rng.uniform(0.2e-3, 10e-3))), wave_speed=float(rng.uniform(0.5, 60.0)),
+                   gravity=9.81)
+        for vmax in (0.0, float(rng.uniform(0, 2)), float(rng.uniform(2, 60))):
+            cfl = float(rng.choice([0.5, 0.3, 0.65]))
+            want = substeps(t, float(ends[k]), vmax, scene, cfl)
+            got = _native.substeps(t, float(ends[k]), vmax, scene.cell_m, scene.wave_speed, scene.gravity, cfl)
+            assert got == want, (t, vmax, scene, cfl)
+            checked += want[0] > 1
+    assert checked > 300  # most cases take several steps, so the rounding of m is exercised
+    # the engine's run loop calls it, rather than writing the schedule again
+    kernel = (Path(__file__).resolve().parent.parent / "mpm" / "native" / "kernel.h").read_text()
+    assert "substeps(t, t_target, vm," in kernel and "std::ceil" not in kernel.split("Result run(")[1].split("Result finish")[0]

@@ -323,19 +323,28 @@ PyObject* py_compiled(PyObject*, PyObject*) {
 #endif
 }
 
+PyObject* py_substeps(PyObject*, PyObject* args) {
+    double t, t_target, vmax, dx, wave_speed, gravity, cfl;
+    if (!PyArg_ParseTuple(args, "ddddddd", &t, &t_target, &vmax, &dx, &wave_speed, &gravity, &cfl)) return nullptr;
+    const virheo::Substeps s = virheo::substeps(t, t_target, vmax, (double)(float)dx, wave_speed, gravity, cfl);
+    return Py_BuildValue("(ld)", s.m, s.dt);
+}
+
 PyMethodDef methods[] = {
     {"simulate", py_simulate, METH_VARARGS, "Run a whole dam-break simulation (see mpm/native_engine.py)."},
     {"return_mapping", py_return_mapping, METH_VARARGS, "The return mapping of eq. 57 over a batch."},
     {"isas", py_isas, METH_NOARGS, "Instruction-set paths this CPU runs, best first."},
     {"compiled", py_compiled, METH_NOARGS, "Instruction-set paths compiled into this build."},
+    {"substeps", py_substeps, METH_VARARGS,
+     "(steps, dt) of the time-step schedule from t to t_target (dx rounded to float, as the engine holds it)."},
     {nullptr, nullptr, 0, nullptr}};
 
 PyModuleDef module = {PyModuleDef_HEAD_INIT, "_native", "Native CPU engine of the MPM dam-break.", -1, methods};
 
 }  // namespace
 
-// the calling convention of simulate and return_mapping: mpm.native_engine.INTERFACE must match, else the build is stale
-constexpr long INTERFACE = 2;
+// the calling convention of simulate, return_mapping and substeps: mpm.native_engine.INTERFACE must match, else the build is stale
+constexpr long INTERFACE = 3;
 
 PyMODINIT_FUNC PyInit__native(void) {
     PyObject* m = PyModule_Create(&module);

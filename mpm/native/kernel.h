@@ -19,6 +19,8 @@ using virheo::Params;
 using virheo::Outputs;
 using virheo::Result;
 using virheo::ProgressFn;
+using virheo::Substeps;
+using virheo::substeps;
 
 constexpr int W = 16;  // lanes of a block
 
@@ -1096,8 +1098,8 @@ struct Engine {
     }
 
     // ---------------------------------------------------------------------------------------------------
-    // the whole simulation: frames at P.frame_times, the time step from the CFL condition re-evaluated
-    // P.substeps times per frame interval (mpm/solver.py's schedule)
+    // the whole simulation: frames at P.frame_times, the time step from the CFL condition (substeps, types.h)
+    // re-evaluated P.substeps times per frame interval
     Result run(Outputs out, ProgressFn progress, void* ctx) {
         Result res;
         double t = 0.0;
@@ -1111,9 +1113,9 @@ struct Engine {
                     return finish(res);
                 }
                 res.vmax_seen = std::max(res.vmax_seen, vm);
-                double dt_cfl = P.cfl * P.dx / (P.wave_speed + vm + P.gravity * (t_target - t));
-                long m = std::max(1L, (long)std::ceil((t_target - t) / dt_cfl - 1e-9));
-                double dt = (t_target - t) / m;
+                const Substeps sched = substeps(t, t_target, vm, P.dx, P.wave_speed, P.gravity, P.cfl);
+                const long m = sched.m;
+                const double dt = sched.dt;
                 float dtf = (float)dt;
                 if (outside_reach()) {
                     res.error = ERR_LEFT_REACH;

@@ -1,6 +1,8 @@
 // Values passed between the Python driver (mpm/native_engine.py) and every instruction-set build of kernel.h.
 #pragma once
 
+#include <cmath>
+
 namespace virheo {
 
 // particle flag bits and the error codes of a run: the values of mpm/solver_constants.py (a test compares them)
@@ -31,5 +33,19 @@ struct Result {
 };
 
 typedef int (*ProgressFn)(void* ctx, int frame);  // nonzero: stop
+
+// The time-step schedule, mpm.engine_run.substeps (a test compares the two): the steps m and the step dt that take
+// the run from t to t_target under the CFL condition dt <= cfl dx / (c + |v|max + g (t_target - t)).
+struct Substeps {
+    long m;
+    double dt;
+};
+inline Substeps substeps(double t, double t_target, double vmax, double dx, double wave_speed, double gravity,
+                         double cfl) {
+    double dt_cfl = cfl * dx / (wave_speed + vmax + gravity * (t_target - t));
+    long m = (long)std::ceil((t_target - t) / dt_cfl - 1e-9);
+    if (m < 1) m = 1;
+    return {m, (t_target - t) / m};
+}
 
 }  // namespace virheo
