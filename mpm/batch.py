@@ -20,6 +20,7 @@ import json
 import multiprocessing
 import os
 import sys
+import threading
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from pathlib import Path
@@ -152,7 +153,17 @@ class InlineExecutor(Executor):
         return fut
 
 
+def _exit_with_parent(parent: int, every_s: float = 1.0) -> None:
+    """Stop this worker within ``every_s`` once its parent has died: a parent killed by a signal it cannot handle
+    (SIGTERM to it alone, SIGKILL) never shuts its pool down, and its workers would simulate on for nobody."""
+    while True:
+        time.sleep(every_s)
+        if os.getppid() != parent:
+            os._exit(1)
+
+
 def _init_worker() -> None:
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True, name="exit-with-parent").start()
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # one simulation per core
     runtime.leave_notices_to_parent()  # local_executor said which engine runs, once for all workers
     # results travel back through the executor: what a worker prints (Taichi's start-up lines) is noise

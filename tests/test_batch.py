@@ -139,3 +139,41 @@ def test_code_version_covers_the_native_sources(tmp_path, monkeypatch):
         versions.append(batch.code_version(batch.DEFAULT_SIMULATOR))
     assert versions[0] != versions[1]
     assert "native_engine.py" not in batch._NOT_SIMULATION  # its driver is hashed with the other mpm/*.py
+
+
+def test_workers_stop_when_their_parent_is_killed(tmp_path):
+    """A parent killed by a signal it cannot handle (here SIGKILL; SIGTERM to the parent alone is the same) never
+    shuts its pool down: its workers notice within seconds and stop, instead of simulating on for nobody."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = (
+        "import os, time\n"
+        "from mpm import batch\n"
+        "ex = batch.local_executor(1)\n"
+        "print(ex.submit(os.getpid).result(), flush=True)\n"
+        "ex.submit(time.sleep, 120)\n"
+        "time.sleep(120)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                              env={**os.environ, "VIRHEO_ARCH": "taichi-cpu"})
+    worker = int(parent.stdout.readline())
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            break
+        try:  # reap it where this test process adopted it (a subreaper)
+            os.waitpid(worker, os.WNOHANG)
+        except ChildProcessError:
+            pass
+        time.sleep(0.2)
+    else:
+        os.kill(worker, signal.SIGKILL)
+        raise AssertionError(f"worker {worker} still runs 15 s after its parent was killed")
