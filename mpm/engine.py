@@ -22,7 +22,7 @@ class Engine:
         self.atomic = not runtime.on_cpu() or os.environ.get("VIRHEO_MPM_ATOMIC") == "1"
         self.tasks = 1 if self.atomic else runtime.threads()
         self.serial = self.tasks == 1 and not self.atomic  # all steps of a call in one launch
-        self.step, self.init_bbox, self.grid_mass = build_kernels(dim, self.tasks, self.atomic)
+        self.step, self.init_bbox, self.grid_mass, self.params = build_kernels(dim, self.tasks, self.atomic)
         self.cap_p = 0
         self.cap_g = 0
         self.warm = False  # True once every kernel has run (compiled or loaded from the cache)

@@ -36,6 +36,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     D = dim
     nd = ti.types.ndarray()
     serial = tasks == 1 and not atomic
+    params = step_params(D)
     stencil_base, ugimp, window, lead_weights, column, LEADS = build_stencil(D)
     L = D - 1  # the last axis: unit stride in the grid, innermost in the stencil loops
     load_boxes, in_box, zcoord, navier_slip = build_walls(D, window)
@@ -70,20 +71,17 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
 
     @ti.func
     def p2g_particle(p, t, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
-                     iso: ti.template(), grid: ti.template(), origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa,
-                     mu, lh):
+                     iso: ti.template(), grid: ti.template(), origin, stride, inv_dx, prm):
         """Scatter particle p: node (lead, k) receives w (m v + m C (x_i - x_p)) - dt V_p tau grad w and w m.
         With u = m v - m C fx (fx: particle position from stencil node 0, cells) and the factors of
         ``lead_weights``, the momentum is w[L, k] (P + k Q) + dw[L, k] R with, per ``lead``,
         P = wl (u + sum_a lead[a] m C[:, a]) + sum_a gl[a] S[:, a], Q = wl m C[:, L], R = wl S[:, L]."""
-        base, fx, w, dw = ugimp(x[p], inv_dx, origin, lh)
-        tau = kirchhoff_stress(be[p], iso[p], kappa, mu)
-        S = (-dt * vol * inv_dx) * block(tau)  # force -V_p tau grad w (grad in cells)
-        mC = (mp * dx) * C[p]
-        u = mp * v[p] - mC @ fx  # APIC momentum at stencil node 0
-        node0 = base.dot(stride)
-        if ti.static(not atomic):
-            node0 += t * capg
+        base, fx, w, dw = ugimp(x[p], inv_dx, origin, prm.lh)
+        tau = kirchhoff_stress(be[p], iso[p], prm.kappa, prm.mu)
+        S = (-prm.dt * prm.vol * inv_dx) * block(tau)  # force -V_p tau grad w (grad in cells)
+        mC = (prm.mp * prm.dx) * C[p]
+        u = prm.mp * v[p] - mC @ fx  # APIC momentum at stencil node 0
+        node0 = base.dot(stride) + t * prm.capg  # the task's own grid copy (t = 0 with atomics)
         for lead in ti.static(LEADS):
             wl, gl = lead_weights(w, dw, lead)
             P = wl * u
@@ -95,7 +93,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 P += gl[a] * column(S, a)
             Q = wl * column(mC, L)
             R = wl * column(S, L)
-            ml = wl * mp
+            ml = wl * prm.mp
             for k in ti.static(range(3)):
                 mom = w[L, k] * (P + k * Q) + dw[L, k] * R
                 contrib = ti.Vector.zero(float, D + 1)
@@ -110,10 +108,10 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     @ti.func
     def g2p_particle(p, x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(),
                      iso: ti.template(), loge: ti.template(), flags: ti.template(), grid: ti.template(), bx,
-                     origin, stride, dt, inv_dx, mu, eta, n, sy, zmid, lh, yue: ti.template(),
-                     slipping: ti.template(), mp, vol, dens: ti.template()):
+                     origin, stride, inv_dx, prm, yue: ti.template(), slipping: ti.template(), dens: ti.template()):
+        dt = prm.dt
         xp = x[p]
-        base, fx, w, dw = ugimp(xp, inv_dx, origin, lh)
+        base, fx, w, dw = ugimp(xp, inv_dx, origin, prm.lh)
         vp = ti.Vector.zero(float, D)
         mass = 0.0
         B = ti.Matrix.zero(float, D, D)
@@ -147,14 +145,15 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         F = ti.Matrix.identity(float, 3) + dt * embed(B)
         b_trial = sandwich(F, b_old)  # elastic predictor, eq. 52 in its F b F^T form
         if ti.static(dens):
-            crowd = mass * inv_dx ** D * vol / mp  # rho_p / rho_0
+            crowd = mass * inv_dx ** D * prm.vol / prm.mp  # rho_p / rho_0
             if crowd > 1:
                 j_spacing = F.determinant() / crowd
                 det_trial = b_trial.determinant()
                 if j_spacing * j_spacing < det_trial:  # lower J only: det b_e = J^2
                     b_trial *= iso_factor(det_trial / (j_spacing * j_spacing))  # (J_s^2 / det)^(1/3)
         # eq. 57, identity when elastic; the Newton solve starts from the particle's last log(e)
-        b_new, iso_new, log_e, plastic = return_mapping(b_trial, b_old, iso[p], mu, eta, n, sy, dt, loge[p], yue)
+        b_new, iso_new, log_e, plastic = return_mapping(b_trial, b_old, iso[p], prm.mu, prm.eta, prm.n_power, prm.sy, dt,
+                                                        loge[p], yue)
         f = flags[p]
         if plastic:
             f |= PLASTIC
@@ -162,7 +161,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         iso[p] = iso_new
         loge[p] = log_e
         # walls, tested at the pre-advection position, as the reference implementation does
-        z = zcoord(xp, zmid)
+        z = zcoord(xp, prm.zmid)
         frozen = False
         hidden = (f & HIDDEN) != 0
         for b in ti.static(range(4)):
@@ -192,7 +191,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         return xn, vp
 
     @ti.func
-    def grid_node(I, grid: ti.template(), win: ti.template(), bx, capg, dt, dx, body, zmid):
+    def grid_node(I, grid: ti.template(), win: ti.template(), bx, prm):
         """Grid node I (window coordinates): momentum of all task copies plus dt m body, zero inside a wall
         (sticking), then velocity; stored as (v, m) in copy 0."""
         i = 0
@@ -200,13 +199,13 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             i = i * win[NX + a] + I[a]
         g = grid[i]
         for t in ti.static(range(1, tasks)):
-            g += grid[t * capg + i]
+            g += grid[t * prm.capg + i]
         m = g[D]
         if m > 0:
-            pos = ti.Vector([(I[a] + win[OX + a]) * dx for a in ti.static(range(D))])
+            pos = ti.Vector([(I[a] + win[OX + a]) * prm.dx for a in ti.static(range(D))])
             mom = ti.Vector([g[a] for a in ti.static(range(D))])
-            mom += (dt * m) * body  # gravity (and any other body force)
-            z = zcoord(pos, zmid)
+            mom += (prm.dt * m) * prm.body  # gravity (and any other body force)
+            z = zcoord(pos, prm.zmid)
             for b in ti.static(range(4)):
                 in_xy, in_z = in_box(bx, b, pos, z)
                 if in_xy and in_z:
@@ -221,10 +220,13 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     @ti.func
     def step_body(x: ti.template(), v: ti.template(), C: ti.template(), be: ti.template(), iso: ti.template(),
                   loge: ti.template(), flags: ti.template(), grid: ti.template(), win: ti.template(),
-                  acc: ti.template(), accf: ti.template(), bx, lim: ti.template(), n, capg, dt, dx, mp, vol,
-                  kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue: ti.template(), slipping: ti.template(),
-                  dens: ti.template()):
-        inv_dx = 1.0 / dx
+                  acc: ti.template(), accf: ti.template(), bx, lim: ti.template(), prm, yue: ti.template(),
+                  slipping: ti.template(), dens: ti.template()):
+        inv_dx = 1.0 / prm.dx
+        n, capg = prm.n, prm.capg
+        # the particles in slices: one per task, each into its own grid copy (CPU), or one particle per slice
+        # into the one grid copy by atomic adds (GPU)
+        slices = n if ti.static(atomic) else tasks
         # 1. clear the previous window in every grid copy
         for i in range(win[COUNT]):
             for t in ti.static(range(tasks)):
@@ -259,97 +261,88 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                                 acc[0, 3 + a] = -2147483647
                             accf[0] = 0.0
         # 3. P2G
-        if ti.static(atomic):
-            for p in range(n):
-                if win[OVERFLOW] == 0 and win[ERROR] == 0:
-                    origin, stride = window(win)
-                    p2g_particle(p, 0, x, v, C, be, iso, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol, kappa,
-                                 mu, lh)
-        else:
-            for t in range(tasks):
-                if win[OVERFLOW] == 0 and win[ERROR] == 0:
-                    origin, stride = window(win)
-                    for p in range(t * n // tasks, (t + 1) * n // tasks):
-                        p2g_particle(p, t, x, v, C, be, iso, grid, origin, stride, capg, dt, inv_dx, dx, mp, vol,
-                                     kappa, mu, lh)
+        for t in range(slices):
+            if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                origin, stride = window(win)
+                p0, p1 = slice_of(t, n)
+                for p in range(p0, p1):
+                    p2g_particle(p, 0 if ti.static(atomic) else t, x, v, C, be, iso, grid, origin, stride, inv_dx,
+                                 prm)
         # 4. grid update: gravity, sticking walls, velocity (copy 0 holds (v, m) afterwards); the nodes by their
         # window coordinates (nested loops on one thread: no index division), none after an overflow
         live = ti.cast(win[COUNT] > 0, ti.i32)
         if ti.static(D == 3):
             for I in ti.grouped(ti.ndrange(win[NX] * live, win[NX + 1], win[NX + 2])):
-                grid_node(I, grid, win, bx, capg, dt, dx, body, zmid)
+                grid_node(I, grid, win, bx, prm)
         else:
             for I in ti.grouped(ti.ndrange(win[NX] * live, win[NX + 1])):
-                grid_node(I, grid, win, bx, capg, dt, dx, body, zmid)
+                grid_node(I, grid, win, bx, prm)
         # 4b. walls with a slip length: tangential velocity of the wall nodes from the Navier law
         if ti.static(slipping):
             for i in range(win[COUNT]):
                 if win[OVERFLOW] == 0 and win[ERROR] == 0:
                     g = grid[i]
                     if g[D] > 0:
-                        inside, vel = navier_slip(i, grid, win, bx, dx, inv_dx, zmid, slip)
+                        inside, vel = navier_slip(i, grid, win, bx, prm.dx, inv_dx, prm.zmid, prm.slip)
                         if inside > 0:
                             for a in ti.static(range(D)):
                                 g[a] = vel[a]
                             grid[i] = g
         # 5. G2P, constitutive update, walls, advection; bounding box and speed for the next step
-        if ti.static(atomic):
-            for p in range(n):
-                if win[OVERFLOW] == 0 and win[ERROR] == 0:
-                    origin, stride = window(win)
-                    xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx, mu,
-                                          eta, nn, sy, zmid, lh, yue, slipping, mp, vol, dens)
+        for t in range(slices):
+            if win[OVERFLOW] == 0 and win[ERROR] == 0:
+                lo = ti.Vector([2147483647] * D)
+                hi = ti.Vector([-2147483647] * D)
+                vmax2 = 0.0
+                bad = 0
+                origin, stride = window(win)
+                p0, p1 = slice_of(t, n)
+                for p in range(p0, p1):
+                    xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, inv_dx, prm,
+                                          yue, slipping, dens)
                     if (xn != xn).any():
-                        win[ERROR] = ERR_NAN
-                    base = stencil_base(xn, inv_dx, lh)
+                        bad = 1
+                    base = stencil_base(xn, inv_dx, prm.lh)
+                    lo = ti.min(lo, base)
+                    hi = ti.max(hi, base)
+                    vmax2 = ti.max(vmax2, vp.norm_sqr())
+                if ti.static(atomic):
                     for a in ti.static(range(D)):
-                        ti.atomic_min(acc[0, a], base[a])
-                        ti.atomic_max(acc[0, 3 + a], base[a])
-                    ti.atomic_max(accf[0], vp.norm())
-        else:
-            for t in range(tasks):
-                if win[OVERFLOW] == 0 and win[ERROR] == 0:
-                    lo = ti.Vector([2147483647] * D)
-                    hi = ti.Vector([-2147483647] * D)
-                    vmax2 = 0.0
-                    bad = 0
-                    origin, stride = window(win)
-                    for p in range(t * n // tasks, (t + 1) * n // tasks):
-                        xn, vp = g2p_particle(p, x, v, C, be, iso, loge, flags, grid, bx, origin, stride, dt, inv_dx,
-                                              mu, eta, nn, sy, zmid, lh, yue, slipping, mp, vol, dens)
-                        if (xn != xn).any():
-                            bad = 1
-                        base = stencil_base(xn, inv_dx, lh)
-                        lo = ti.min(lo, base)
-                        hi = ti.max(hi, base)
-                        vmax2 = ti.max(vmax2, vp.norm_sqr())
+                        ti.atomic_min(acc[0, a], lo[a])
+                        ti.atomic_max(acc[0, 3 + a], hi[a])
+                    ti.atomic_max(accf[0], ti.sqrt(vmax2))
+                else:
                     for a in ti.static(range(D)):
                         acc[t, a] = lo[a]
                         acc[t, 3 + a] = hi[a]
                     accf[t] = ti.sqrt(vmax2)
-                    if bad:
-                        win[ERROR] = ERR_NAN
+                if bad:
+                    win[ERROR] = ERR_NAN
         # 6. count the completed step
         for _ in range(1):
             if win[OVERFLOW] == 0 and win[ERROR] == 0:
                 win[DONE] += 1
 
+    @ti.func
+    def slice_of(t, n):
+        """Particles [p0, p1) of slice t: one particle with atomics, else the task's share."""
+        p0, p1 = t, t + 1
+        if ti.static(not atomic):
+            p0, p1 = t * n // tasks, (t + 1) * n // tasks
+        return p0, p1
+
     @ti.kernel
     def step(x: nd, v: nd, C: nd, be: nd, iso: nd, loge: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd,
-             boxes: nd, lim: nd, n: ti.i32, capg: ti.i32, dt: float, dx: float, mp: float, vol: float,
-             kappa: float, mu: float, eta: float, nn: float, sy: float, body: ti.types.vector(D, float),
-             zmid: float, lh: float, slip: float, steps: ti.i32, yue: ti.template(), slipping: ti.template(),
+             boxes: nd, lim: nd, prm: params, steps: ti.i32, yue: ti.template(), slipping: ti.template(),
              dens: ti.template()):
         if ti.static(serial):  # one thread: all ``steps`` steps in one launch, loops run in order
             for _ in range(1):
                 bx = load_boxes(boxes)
                 for _s in range(steps):
-                    step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, n, capg, dt, dx, mp,
-                              vol, kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping, dens)
+                    step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, prm, yue, slipping, dens)
         else:  # parallel loops: one step per launch
             bx = load_boxes(boxes)
-            step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, n, capg, dt, dx, mp, vol,
-                      kappa, mu, eta, nn, sy, body, zmid, lh, slip, yue, slipping, dens)
+            step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, prm, yue, slipping, dens)
 
     @ti.kernel
     def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, lh: float):
@@ -372,4 +365,13 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         for i in range(win[COUNT]):
             out[0] += grid[i][D]
 
-    return step, init_bbox, grid_mass
+    return step, init_bbox, grid_mass, params
+
+
+def step_params(dim: int):
+    """The step kernel's scalar parameters as one Taichi struct: particle count, grid capacity per copy, the
+    step dt, the cell width dx, the particle's mass and volume, the moduli kappa and mu, the material (eta, n,
+    sigma_y), the body force, the plane z of symmetry, half the box length in cells and the slip length."""
+    return ti.types.struct(n=ti.i32, capg=ti.i32, dt=float, dx=float, mp=float, vol=float, kappa=float, mu=float,
+                           eta=float, n_power=float, sy=float, body=ti.types.vector(dim, float), zmid=float, lh=float,
+                           slip=float)

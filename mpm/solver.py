@@ -213,12 +213,12 @@ class _Run:
 
     def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
         eng, s = self.eng, self.scene
+        prm = eng.params(n=self.count, capg=eng.cap_g, dt=dt, dx=s.cell_m, mp=s.particle_mass, vol=s.particle_volume,
+                         kappa=s.kappa, mu=s.mu, eta=self.eta, n_power=self.n, sy=self.sigma_y, body=self.body,
+                         zmid=s.plane_z_m, lh=s.half_length_m / s.cell_m, slip=self.slip_m)
         for _ in range(launches):
             eng.step(eng.x, eng.v, eng.C, eng.be, eng.iso, eng.loge, eng.flags, eng.grid, eng.win, eng.acc,
-                     eng.accf, eng.boxes, eng.lim, self.count, eng.cap_g, dt, s.cell_m, s.particle_mass,
-                     s.particle_volume, s.kappa, s.mu, self.eta, self.n, self.sigma_y, self.body, s.plane_z_m,
-                     s.half_length_m / s.cell_m, self.slip_m, per_launch, self.yue, self.slip_m > 0,
-                     self.density_correction)
+                     eng.accf, eng.boxes, eng.lim, prm, per_launch, self.yue, self.slip_m > 0, self.density_correction)
 
     def _advance(self, steps: int, dt: float) -> None:
         """Run ``steps`` steps of size dt, growing the grid whenever the window overflows it."""
