@@ -17,7 +17,7 @@ else:
 setup(ext_modules=[Extension(
     "mpm._native",
     sources=["mpm/native/engine.cpp"],
-    depends=["mpm/native/kernel.h", "mpm/native/types.h"],
+    depends=["mpm/native/kernel.h", "mpm/native/simd.h", "mpm/native/transfer.h", "mpm/native/types.h"],
     extra_compile_args=FLAGS,
     language="c++",
     optional=True,

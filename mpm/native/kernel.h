@@ -1,18 +1,20 @@
 // The MPM dam-break step of mpm/kernels.py, in C++: one SIMD width, compiled once per instruction set.
 //
 // engine.cpp includes this file once per target (AVX-512, AVX2, generic) inside its own namespace and target
-// pragma; nothing here includes a header (engine.cpp does that first, and types.h: Params, Outputs, Result). Sections and names follow the Taichi
-// step: P2G, grid, G2P, return mapping (paper section 4, appendix B); the constants arrive from their one
-// Python home (mpm/scene.py, mpm/constitutive.py) through Params.
+// pragma, after the headers it needs and types.h (Params, Outputs, Result, the time-step schedule). The
+// instruction sets differ only in the two layers this file includes: simd.h (the 16-lane values and their
+// operations) and transfer.h (how a particle's stencil rows are formed in P2G and summed in G2P); the physics
+// below reads the same on every one. Sections and names follow the Taichi step: P2G, grid, G2P, return mapping
+// (paper section 4, appendix B); the constants arrive from their one Python home (mpm/scene.py,
+// mpm/solver_constants.py) through Params.
 //
 // Layout: particles in blocked structure-of-arrays (16 lanes of one field contiguous, all fields of a block
 // together, so that a step streams through one region of memory), float32, padded to whole blocks; the grid is
 // the dense window of mpm/stencil.py with 4 floats per node (momentum or velocity, then mass; 2D: one pad),
 // its last axis contiguous, so that one stencil row (3 nodes) is one 16-float vector (the 4th node gets + 0).
-// Per block of 16 particles the constitutive update runs across the lanes; the transfers run per particle
-// along stencil rows (with AVX-512 their per-particle operands and results pass through 4-float rows per lane,
-// which permutes turn into 16-lane fields and back once per block). A step is one fused pass per particle: G2P from grid A, constitutive update, advection,
-// and P2G of the next step into grid B (the same time step), except at a time-step update.
+// Per block of 16 particles the constitutive update runs across the lanes; the transfers run per particle along
+// stencil rows. A step is one fused pass per particle: G2P from grid A, constitutive update, advection, and P2G
+// of the next step into grid B (the same time step), except at a time-step update.
 
 namespace VIRHEO_ISA {
 using virheo::Params;
@@ -22,185 +24,8 @@ using virheo::ProgressFn;
 using virheo::Substeps;
 using virheo::substeps;
 
-constexpr int W = 16;  // lanes of a block
+#include "simd.h"
 
-#define VH_INLINE static inline __attribute__((always_inline))
-
-// The 16-lane values V (float) and VI (int32). With AVX-512 one register each (GCC's vector extension); on
-// narrower instruction sets a pack of native registers with the same operators: GCC lowers a 64-byte vector
-// type that the target lacks through the stack, which made those paths several times slower than scalar code.
-// engine.cpp sets VIRHEO_VEC_BYTES, the register width of the instruction set.
-#if VIRHEO_VEC_BYTES == 64
-typedef float V __attribute__((vector_size(64)));
-typedef int VI __attribute__((vector_size(64)));
-VH_INLINE VI asi(V a) { return (VI)a; }
-VH_INLINE V asf(VI a) { return (V)a; }
-VH_INLINE VI to_int(V a) { return __builtin_convertvector(a, VI); }  // truncation
-VH_INLINE V tofloat(VI a) { return __builtin_convertvector(a, V); }
-VH_INLINE V vsqrt(V a) {
-    V r;
-    for (int i = 0; i < W; i++) r[i] = __builtin_sqrtf(a[i]);
-    return r;
-}
-#else
-typedef float NF __attribute__((vector_size(VIRHEO_VEC_BYTES)));
-typedef int NI __attribute__((vector_size(VIRHEO_VEC_BYTES)));
-constexpr int NL = VIRHEO_VEC_BYTES / 4, K = W / NL;  // lanes per register, registers per value
-struct VI {
-    NI r[K];
-    int operator[](int i) const { return r[i / NL][i % NL]; }
-};
-struct V {
-    NF r[K];
-    float operator[](int i) const { return r[i / NL][i % NL]; }
-    float& operator[](int i) { return reinterpret_cast<float*>(r)[i]; }
-};
-#define VH_BIN(T, R, op)                                                       \
-    VH_INLINE R operator op(const T& a, const T& b) {                          \
-        R o;                                                                   \
-        for (int k = 0; k < K; k++) o.r[k] = a.r[k] op b.r[k];                 \
-        return o;                                                              \
-    }
-#define VH_SCALAR(T, S, R, op)                                                 \
-    VH_INLINE R operator op(const T& a, S b) {                                 \
-        R o;                                                                   \
-        for (int k = 0; k < K; k++) o.r[k] = a.r[k] op b;                      \
-        return o;                                                              \
-    }                                                                          \
-    VH_INLINE R operator op(S a, const T& b) {                                 \
-        R o;                                                                   \
-        for (int k = 0; k < K; k++) o.r[k] = a op b.r[k];                      \
-        return o;                                                              \
-    }
-#define VH_ARITH(T, S, op) VH_BIN(T, T, op) VH_SCALAR(T, S, T, op)              \
-    VH_INLINE T& operator op##=(T& a, const T& b) { return a = a op b; }         \
-    VH_INLINE T& operator op##=(T& a, S b) { return a = a op b; }
-#define VH_CMP(T, S, op) VH_BIN(T, VI, op) VH_SCALAR(T, S, VI, op)
-VH_ARITH(V, float, +) VH_ARITH(V, float, -) VH_ARITH(V, float, *) VH_ARITH(V, float, /)
-VH_CMP(V, float, <) VH_CMP(V, float, >) VH_CMP(V, float, <=) VH_CMP(V, float, >=) VH_CMP(V, float, ==)
-VH_CMP(V, float, !=)
-VH_ARITH(VI, int, +) VH_ARITH(VI, int, -) VH_ARITH(VI, int, *) VH_ARITH(VI, int, &) VH_ARITH(VI, int, |)
-VH_CMP(VI, int, <) VH_CMP(VI, int, >) VH_CMP(VI, int, ==) VH_CMP(VI, int, !=)
-VH_SCALAR(VI, int, VI, <<) VH_SCALAR(VI, int, VI, >>)
-#undef VH_BIN
-#undef VH_SCALAR
-#undef VH_ARITH
-#undef VH_CMP
-VH_INLINE V operator-(const V& a) {
-    V o;
-    for (int k = 0; k < K; k++) o.r[k] = -a.r[k];
-    return o;
-}
-VH_INLINE VI operator~(const VI& a) {
-    VI o;
-    for (int k = 0; k < K; k++) o.r[k] = ~a.r[k];
-    return o;
-}
-VH_INLINE VI asi(const V& a) {
-    VI o;
-    for (int k = 0; k < K; k++) o.r[k] = (NI)a.r[k];
-    return o;
-}
-VH_INLINE V asf(const VI& a) {
-    V o;
-    for (int k = 0; k < K; k++) o.r[k] = (NF)a.r[k];
-    return o;
-}
-VH_INLINE VI to_int(const V& a) {
-    VI o;
-    for (int k = 0; k < K; k++) o.r[k] = __builtin_convertvector(a.r[k], NI);
-    return o;
-}
-VH_INLINE V tofloat(const VI& a) {
-    V o;
-    for (int k = 0; k < K; k++) o.r[k] = __builtin_convertvector(a.r[k], NF);
-    return o;
-}
-VH_INLINE V vsqrt(const V& a) {
-    V o;
-    for (int k = 0; k < K; k++)
-        for (int i = 0; i < NL; i++) o.r[k][i] = __builtin_sqrtf(a.r[k][i]);
-    return o;
-}
-#endif
-
-VH_INLINE V vload(const float* p) { V r; __builtin_memcpy(&r, p, sizeof(V)); return r; }
-VH_INLINE VI vloadi(const int* p) { VI r; __builtin_memcpy(&r, p, sizeof(VI)); return r; }
-VH_INLINE void vstore(float* p, V a) { __builtin_memcpy(p, &a, sizeof(V)); }
-VH_INLINE void vstorei(int* p, VI a) { __builtin_memcpy(p, &a, sizeof(VI)); }
-VH_INLINE V splat(float a) { return V{} + a; }
-VH_INLINE VI splati(int a) { return VI{} + a; }
-#if VIRHEO_VEC_BYTES == 64
-// lane-wise m ? a : b (m: -1 or 0 per lane): one masked blend; the bitwise form below costs AVX-512 two operations
-VH_INLINE V sel(VI m, V a, V b) { return m ? a : b; }
-VH_INLINE VI seli(VI m, VI a, VI b) { return m ? a : b; }
-#else
-VH_INLINE V sel(VI m, V a, V b) { return asf((asi(a) & m) | (asi(b) & ~m)); }
-VH_INLINE VI seli(VI m, VI a, VI b) { return (a & m) | (b & ~m); }
-#endif
-VH_INLINE V vabs(V a) { return asf(asi(a) & 0x7fffffff); }
-VH_INLINE V vmin(V a, V b) { return sel(a < b, a, b); }
-VH_INLINE V vmax(V a, V b) { return sel(a > b, a, b); }
-VH_INLINE bool any(VI m) {
-    int r = 0;
-    for (int i = 0; i < W; i++) r |= m[i];
-    return r != 0;
-}
-#if VIRHEO_VEC_BYTES == 64
-VH_INLINE V vfloor(V a) { return (V)_mm512_roundscale_ps((__m512)a, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC); }
-VH_INLINE VI vfloor_i(V a) { return to_int(vfloor(a)); }  // floor as int32, |a| < 2^31
-VH_INLINE V times_pow2(V y, V n) { return (V)_mm512_scalef_ps((__m512)y, (__m512)n); }  // y 2^n, n integral
-#else
-VH_INLINE VI vfloor_i(V a) {  // floor as int32, |a| < 2^31
-    VI t = to_int(a);
-    return t + (tofloat(t) > a);  // the mask is -1 where truncation rounded up
-}
-VH_INLINE V vfloor(V a) { return tofloat(vfloor_i(a)); }
-VH_INLINE V times_pow2(V y, V n) { return y * asf((to_int(n) + 127) << 23); }  // y 2^n, n integral in [-126, 127]
-#endif
-
-// exp and log in float32 (range reduction by powers of two, minimax polynomials on the reduced interval),
-// branch-free so that all lanes run them at once; relative error a few ulp.
-VH_INLINE V vexp(V x) {
-    x = vmin(vmax(x, splat(-87.0f)), splat(88.0f));
-    V fx = vfloor(x * 1.44269504088896341f + 0.5f);
-    V r = x - fx * 0.693359375f + fx * 2.12194440e-4f;  // x - n ln 2, ln 2 in two parts
-    // 1 + r + r^2 (c0 + c1 r + .. + c5 r^5), the polynomial by Estrin's scheme (short dependency chains)
-    V r2 = r * r, r4 = r2 * r2;
-    V q01 = 5.0000001201e-1f + 1.6666665459e-1f * r, q23 = 4.1665795894e-2f + 8.3334519073e-3f * r;
-    V q45 = 1.3981999507e-3f + 1.9875691500e-4f * r;
-    V p = (q01 + r2 * q23) + r4 * q45;
-    V y = p * r2 + (r + 1.0f);
-    return times_pow2(y, fx);
-}
-
-VH_INLINE V vlog(V x) {  // x > 0 and normal
-    VI bits = asi(x);
-    VI e = ((bits >> 23) & 0xff) - 126;
-    V m = asf((bits & 0x007fffff) | 0x3f000000);  // mantissa in [0.5, 1)
-    VI small = m < 0.707106781186547524f;
-    e = e + small;  // the mask is -1: one binade down
-    m = sel(small, m + m, m) - 1.0f;
-    V z = m * m, z2 = z * z, z4 = z2 * z2;
-    // c0 + c1 m + .. + c8 m^8 by Estrin's scheme
-    V q01 = 3.3333331174e-1f - 2.4999993993e-1f * m, q23 = 2.0000714765e-1f - 1.6668057665e-1f * m;
-    V q45 = 1.4249322787e-1f - 1.2420140846e-1f * m, q67 = 1.1676998740e-1f - 1.1514610310e-1f * m;
-    V p = ((q01 + z * q23) + z2 * (q45 + z * q67)) + z4 * 7.0376836292e-2f;
-    V fe = tofloat(e);
-    V y = p * (m * z) - fe * 2.12194440e-4f - 0.5f * z;
-    return m + y + fe * 0.693359375f;
-}
-
-// x^(-1/3) for x > 0 and normal, without a division: a guess from the float's bits (exponent / -3, 4 %), then
-// two steps y <- y (1 + h/3 + 2h^2/9), h = 1 - x y^3 (the series of (1 - h)^(-1/3): cubic, 4 % -> 3e-4 -> 1 ulp)
-VH_INLINE V vrcbrt(V x) {
-    V y = asf(to_int(tofloat(asi(x)) * (-1.0f / 3.0f)) + 1419967116);
-    for (int it = 0; it < 2; it++) {
-        V h = 1.0f - (x * y) * (y * y);
-        y = y + (y * h) * (1.0f / 3.0f + (2.0f / 9.0f) * h);
-    }
-    return y;
-}
 VH_INLINE V iso_factor(V det) { return vrcbrt(det); }  // det(b_e)^(-1/3)
 
 // symmetric 3x3 as (xx, yy, zz, xy, xz, yz)
@@ -324,36 +149,8 @@ VH_INLINE Weights ugimp(V fx, float l) {
     return r;
 }
 
-// Lane patterns of a stencil row: lane 4k + c is component c of node k (k = 0..2; lanes 12-15: a 4th node
-// that receives + 0).
-static const float NODE_[3][W] = {{1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0},
-                                  {0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0},
-                                  {0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0}};
-static const float COMP_[4][W] = {{1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0},
-                                  {0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0},
-                                  {0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0},
-                                  {0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1}};
-static const float NODE_INDEX_[W] = {0, 0, 0, 0, 1, 1, 1, 1, 2, 2, 2, 2, 3, 3, 3, 3};  // k on node k's lanes
-static const int IOTA_[W] = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15};
-#define NODE0 vload(NODE_[0])
-#define NODE1 vload(NODE_[1])
-#define NODE2 vload(NODE_[2])
-#define COMP(c) vload(COMP_[c])
-typedef float V4 __attribute__((vector_size(16)));
-// (sum_k a[4k + c])_c, c = 0..3: the three nodes of a stencil row added, in registers
-#if VIRHEO_VEC_BYTES == 64
-VH_INLINE V4 node_sum(V a) {
-    return __builtin_shufflevector(a, a, 0, 1, 2, 3) + __builtin_shufflevector(a, a, 4, 5, 6, 7) +
-           __builtin_shufflevector(a, a, 8, 9, 10, 11);
-}
-#elif VIRHEO_VEC_BYTES == 32
-VH_INLINE V4 node_sum(const V& a) {
-    return __builtin_shufflevector(a.r[0], a.r[0], 0, 1, 2, 3) + __builtin_shufflevector(a.r[0], a.r[0], 4, 5, 6, 7) +
-           __builtin_shufflevector(a.r[1], a.r[1], 0, 1, 2, 3);
-}
-#else
-VH_INLINE V4 node_sum(const V& a) { return a.r[0] + a.r[1] + a.r[2]; }
-#endif
+#include "transfer.h"
+
 using virheo::ERR_INTERRUPTED, virheo::ERR_LEFT_REACH, virheo::ERR_NAN, virheo::ERR_SPEED;
 using virheo::FROZEN, virheo::HIDDEN, virheo::PLASTIC;
 constexpr int INT_BIG = 2147483647;
@@ -414,12 +211,7 @@ struct Engine {
     std::vector<unsigned char> axis_mask[3];
     unsigned char zmask2d = 0;
 
-    struct Block {
-        alignas(64) float vp[D][W], B[D][D][W], mass[W];
-#if VIRHEO_VEC_BYTES == 64
-        alignas(64) float rows[4][W][4];  // gather_lane's row sums per lane: (v, m), grad along L, along 0, 1
-#endif
-    };
+    using Block = GatherBlock<D>;
 
     // ---------------------------------------------------------------------------------------------------
     // set-up
@@ -562,51 +354,11 @@ struct Engine {
 
     // ---------------------------------------------------------------------------------------------------
     // 1. P2G: node (lead, k) receives w (m v + m C (x_i - x_p)) - dt V_p tau grad w and w m
-    struct ScatterBlock {
-        alignas(64) float fx[D][W], w[D][3][W], dw[D][3][W], u[D][W], mC[D][D][W], S[D][D][W];
-        alignas(64) int node0[W];  // each lane's stencil node 0 in the window (block_nodes)
-#if VIRHEO_VEC_BYTES == 64
-        // per lane, 4-float rows (a node's components): the weights w and dw along L (node k in place k), the
-        // momentum u with the mass, and the columns of m C and S (column L, then 0 .. L-1), component r in place r
-        alignas(64) float rows[4 + 2 * D][W][4];
-#endif
-    };
+    using Scatter = ScatterBlock<D>;
 
-#if VIRHEO_VEC_BYTES == 64
-    // 16 rows of 4 floats (lane i's row at in[i]) -> 4 fields of 16 lanes (component c in comp[c])
-    VH_INLINE void rows_to_lanes(const float (*in)[4], V comp[4]) {
-        V z[4];
-        for (int k = 0; k < 4; k++) z[k] = vload(in[4 * k]);
-        V lo01 = __builtin_shufflevector(z[0], z[1], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
-        V hi01 = __builtin_shufflevector(z[0], z[1], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
-        V lo23 = __builtin_shufflevector(z[2], z[3], 0, 4, 8, 12, 16, 20, 24, 28, 1, 5, 9, 13, 17, 21, 25, 29);
-        V hi23 = __builtin_shufflevector(z[2], z[3], 2, 6, 10, 14, 18, 22, 26, 30, 3, 7, 11, 15, 19, 23, 27, 31);
-        comp[0] = __builtin_shufflevector(lo01, lo23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
-        comp[1] = __builtin_shufflevector(lo01, lo23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
-        comp[2] = __builtin_shufflevector(hi01, hi23, 0, 1, 2, 3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 22, 23);
-        comp[3] = __builtin_shufflevector(hi01, hi23, 8, 9, 10, 11, 12, 13, 14, 15, 24, 25, 26, 27, 28, 29, 30, 31);
-    }
-    // its inverse: 4 fields of 16 lanes -> 16 rows of 4 floats (lane i's row at out[i])
-    VH_INLINE void lanes_to_rows(V c0, V c1, V c2, V c3, float (*out)[4]) {
-        V a01 = __builtin_shufflevector(c0, c1, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
-        V b01 = __builtin_shufflevector(c0, c1, 8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
-        V a23 = __builtin_shufflevector(c2, c3, 0, 16, 1, 17, 2, 18, 3, 19, 4, 20, 5, 21, 6, 22, 7, 23);
-        V b23 = __builtin_shufflevector(c2, c3, 8, 24, 9, 25, 10, 26, 11, 27, 12, 28, 13, 29, 14, 30, 15, 31);
-        vstore(out[0], __builtin_shufflevector(a01, a23, 0, 1, 16, 17, 2, 3, 18, 19, 4, 5, 20, 21, 6, 7, 22, 23));
-        vstore(out[4], __builtin_shufflevector(a01, a23, 8, 9, 24, 25, 10, 11, 26, 27, 12, 13, 28, 29, 14, 15, 30, 31));
-        vstore(out[8], __builtin_shufflevector(b01, b23, 0, 1, 16, 17, 2, 3, 18, 19, 4, 5, 20, 21, 6, 7, 22, 23));
-        vstore(out[12], __builtin_shufflevector(b01, b23, 8, 9, 24, 25, 10, 11, 26, 27, 12, 13, 28, 29, 14, 15, 30, 31));
-    }
-    // a row of 4 floats as a stencil row: (r0 x4, r1 x4, r2 x4, r3 x4), and (r0, r1, r2, r3) on each of the 4 nodes
-    VH_INLINE V per_node(const float* r) {
-        return (V)_mm512_permutexvar_ps(_mm512_set_epi32(3, 3, 3, 3, 2, 2, 2, 2, 1, 1, 1, 1, 0, 0, 0, 0),
-                                        _mm512_castps128_ps512(_mm_loadu_ps(r)));
-    }
-    VH_INLINE V on_every_node(const float* r) { return (V)_mm512_broadcast_f32x4(_mm_loadu_ps(r)); }
-#endif
 
     // per-lane quantities of P2G for the block at p (positions x, bases, b_e, iso, v, C already stored)
-    void scatter_prepare(int p, float dt, ScatterBlock& sb) {
+    void scatter_prepare(int p, float dt, Scatter& sb) {
         const float mp = P.mp, dx = P.dx;
         block_weights(p, sb);
         V fx[D];
@@ -626,59 +378,22 @@ struct Engine {
             }
             vstore(sb.u[r], u);
         }
-#if VIRHEO_VEC_BYTES == 64
-        const V zero{};
-        auto put = [&](int q, auto f) {  // row q of every lane from its components f(0) .. f(3)
-            lanes_to_rows(f(0), f(1), f(2), f(3), sb.rows[q]);
-        };
-        put(2, [&](int r) { return r < D ? vload(sb.u[r]) : r == D ? splat(mp) : zero; });
-        for (int j = 0; j < D; j++) {  // column a = L, 0, .., L-1
-            const int a = j == 0 ? L : j - 1;
-            put(3 + 2 * j, [&](int r) { return r < D ? vload(sb.mC[r][a]) : zero; });
-            put(4 + 2 * j, [&](int r) { return r < D ? vload(sb.S[r][a]) : zero; });
-        }
-#endif
+        scatter_rows(sb, mp);  // (AVX-512: as rows of every lane)
     }
 
     // scatter lane i of the block into copy t of grid g
     // (block_nodes has found the block's stencils inside the window)
-    void scatter_lane(int i, const ScatterBlock& sb, int g, int t) {
+    void scatter_lane(int i, const Scatter& sb, int g, int t) {
         const Window& w = win[g];
         float* gr = &grid[g][((size_t)t * cap[g] + sb.node0[i]) * 4];
-        V A[D - 1], G[D - 1];
-#if VIRHEO_VEC_BYTES == 64
-        const float(*rows)[W][4] = sb.rows;
-        const V Wk = per_node(rows[0][i]), DWk = per_node(rows[1][i]), KWk = Wk * vload(NODE_INDEX_);
-        const V CU = on_every_node(rows[2][i]), Qb = on_every_node(rows[3][i]), Rb = on_every_node(rows[4][i]);
-        for (int a = 0; a < L; a++) {
-            A[a] = Wk * on_every_node(rows[5 + 2 * a][i]);
-            G[a] = Wk * on_every_node(rows[6 + 2 * a][i]);
-        }
-#else
-        const float w0 = sb.w[L][0][i], w1 = sb.w[L][1][i], w2 = sb.w[L][2][i];
-        V Wk = w0 * NODE0 + w1 * NODE1 + w2 * NODE2;
-        V KWk = w1 * NODE1 + (2.0f * w2) * NODE2;
-        V DWk = sb.dw[L][0][i] * NODE0 + sb.dw[L][1][i] * NODE1 + sb.dw[L][2][i] * NODE2;
-        V CU = P.mp * COMP(D), Qb{}, Rb{};
-        for (int r = 0; r < D; r++) {
-            CU += sb.u[r][i] * COMP(r);
-            Qb += sb.mC[r][L][i] * COMP(r);
-            Rb += sb.S[r][L][i] * COMP(r);
-        }
-        for (int a = 0; a < L; a++) {
-            V ma{}, sa{};
-            for (int r = 0; r < D; r++) ma += sb.mC[r][a][i] * COMP(r), sa += sb.S[r][a][i] * COMP(r);
-            A[a] = Wk * ma;
-            G[a] = Wk * sa;
-        }
-#endif
-        V U = Wk * CU + KWk * Qb + DWk * Rb;
+        const RowTerms<D> r = row_terms(sb, i, P.mp);
+        const V U = r.Wk * r.CU + r.KWk * r.Qb + r.DWk * r.Rb;
         if constexpr (D == 3) {
             // the weights are a tensor product: row (a0, a1) = w1[a1] X[a0] + w0[a0] Z[a1]
             V X[3], Z[3];
             for (int a = 0; a < 3; a++) {
-                X[a] = sb.w[0][a][i] * (U + (float)a * A[0]) + sb.dw[0][a][i] * G[0];
-                Z[a] = ((float)a * sb.w[1][a][i]) * A[1] + sb.dw[1][a][i] * G[1];
+                X[a] = sb.w[0][a][i] * (U + (float)a * r.A[0]) + sb.dw[0][a][i] * r.G[0];
+                Z[a] = ((float)a * sb.w[1][a][i]) * r.A[1] + sb.dw[1][a][i] * r.G[1];
             }
             for (int a0 = 0; a0 < 3; a0++)
                 for (int a1 = 0; a1 < 3; a1++) {
@@ -688,7 +403,7 @@ struct Engine {
                 }
         } else {
             for (int a0 = 0; a0 < 3; a0++) {
-                V row = sb.w[0][a0][i] * (U + (float)a0 * A[0]) + sb.dw[0][a0][i] * G[0];
+                V row = sb.w[0][a0][i] * (U + (float)a0 * r.A[0]) + sb.dw[0][a0][i] * r.G[0];
                 float* q = gr + w.row[a0];
                 vstore(q, vload(q) + row);
             }
@@ -697,7 +412,7 @@ struct Engine {
 
     void p2g_pass(int g, float dt) {
         parallel(T, [&](int t) {
-            ScatterBlock sb;
+            Scatter sb;
             for (int p = slice(t); p < slice(t + 1); p += W) {
                 scatter_prepare(p, dt, sb);
                 int cnt = N - p < W ? N - p : W;
@@ -821,23 +536,18 @@ struct Engine {
     // ---------------------------------------------------------------------------------------------------
     // 3. G2P: v_p = sum w v_i, C_p = sum v_i (x) grad w (and the grid density with the correction)
     // the uGIMP weights of the block at p at its stored positions and stencil nodes
-    void block_weights(int p, ScatterBlock& sb) {
+    void block_weights(int p, Scatter& sb) {
         for (int a = 0; a < D; a++) {
             V fx = vload(&x[a][p]) * inv_dx - tofloat(vloadi(&base[a][p]));
             Weights wt = ugimp(fx, P.lh);
             vstore(sb.fx[a], fx);
             for (int k = 0; k < 3; k++) vstore(sb.w[a][k], wt.w[k]), vstore(sb.dw[a][k], wt.dw[k]);
-#if VIRHEO_VEC_BYTES == 64
-            if (a == L) {  // the weights along L as rows 0 and 1 (node k in place k)
-                lanes_to_rows(wt.w[0], wt.w[1], wt.w[2], V{}, sb.rows[0]);
-                lanes_to_rows(wt.dw[0], wt.dw[1], wt.dw[2], V{}, sb.rows[1]);
-            }
-#endif
+            if (a == L) weight_rows(sb, wt.w, wt.dw);  // (AVX-512: as rows 0 and 1 of every lane)
         }
     }
 
     // each lane's stencil node 0 in window g, for the block at p; true if a live lane's stencil leaves the window
-    bool block_nodes(int p, int cnt, int g, ScatterBlock& sb) {
+    bool block_nodes(int p, int cnt, int g, Scatter& sb) {
         const Window& w = win[g];
         VI k{}, out{};
         for (int a = 0; a < D; a++) {
@@ -849,18 +559,14 @@ struct Engine {
         return any(out & (vloadi(IOTA_) < cnt));
     }
 
-    void gather_lane(int i, int g, const ScatterBlock& sb, Block& blk) {
+    void gather_lane(int i, int g, const Scatter& sb, Block& blk) {
         const Window& w = win[g];
         const float* gr = &grid[g][(long)sb.node0[i] * 4];
         float wt[D][3], dw[D][3];
         for (int a = 0; a < D; a++)
             for (int k = 0; k < 3; k++) wt[a][k] = sb.w[a][k][i], dw[a][k] = sb.dw[a][k][i];
-#if VIRHEO_VEC_BYTES == 64
-        const V Wk = per_node(sb.rows[0][i]), DWk = per_node(sb.rows[1][i]);
-#else
-        V Wk = wt[L][0] * NODE0 + wt[L][1] * NODE1 + wt[L][2] * NODE2;
-        V DWk = dw[L][0] * NODE0 + dw[L][1] * NODE1 + dw[L][2] * NODE2;
-#endif
+        V Wk, DWk;
+        node_weights(sb, i, Wk, DWk);
         // the weights are a tensor product: sum over the last leading axis first
         V VP, BL, BA[D - 1];
         if constexpr (D == 3) {
@@ -883,50 +589,7 @@ struct Engine {
             }
             VP = Wk * T1, BA[0] = Wk * T2, BL = DWk * T1;
         }
-#if VIRHEO_VEC_BYTES == 64
-        // the row sums as lane i's 4-float rows; gather_finish turns the block's rows into lanes
-        V4 rows[4] = {node_sum(VP), node_sum(BL), {}, {}};
-        for (int a = 0; a < L; a++) rows[2 + a] = node_sum(BA[a]);
-        for (int q = 0; q < 4; q++) __builtin_memcpy(blk.rows[q][i], &rows[q], sizeof(V4));
-#else
-        V4 vp = node_sum(VP), bl = node_sum(BL) * inv_dx, ba[D - 1];
-        for (int a = 0; a < L; a++) ba[a] = node_sum(BA[a]) * inv_dx;
-        for (int r = 0; r < D; r++) {
-            blk.vp[r][i] = vp[r];
-            for (int a = 0; a < L; a++) blk.B[r][a][i] = ba[a][r];
-            blk.B[r][L][i] = bl[r];  // C_p = grad v
-        }
-        blk.mass[i] = vp[D];
-#endif
-    }
-
-    // after gather_lane of lanes 0..cnt-1: the lanes past the last particle at rest, and (AVX-512) the rows of
-    // 4 floats per lane turned into 16-lane fields (rows_to_lanes)
-    void gather_finish(int cnt, Block& blk) {
-#if VIRHEO_VEC_BYTES == 64
-        for (int i = cnt; i < W; i++)
-            for (int q = 0; q < 4; q++)
-                for (int c = 0; c < 4; c++) blk.rows[q][i][c] = 0;
-        for (int q = 0; q < 2 + L; q++) {
-            V comp[4];
-            rows_to_lanes(blk.rows[q], comp);
-            if (q == 0) {  // velocity and mass
-                for (int r = 0; r < D; r++) vstore(blk.vp[r], comp[r]);
-                vstore(blk.mass, comp[D]);
-            } else {  // C_p = grad v: column L from BL (q = 1), column a from BA[a] (q = 2 + a)
-                const int col = q == 1 ? L : q - 2;
-                for (int r = 0; r < D; r++) vstore(blk.B[r][col], comp[r] * inv_dx);
-            }
-        }
-#else
-        for (int i = cnt; i < W; i++) {  // lanes past the last particle: at rest
-            for (int r = 0; r < D; r++) {
-                blk.vp[r][i] = 0;
-                for (int c = 0; c < D; c++) blk.B[r][c][i] = 0;
-            }
-            blk.mass[i] = 0;
-        }
-#endif
+        gather_rows(blk, i, VP, BL, BA, inv_dx);
     }
 
     // ---------------------------------------------------------------------------------------------------
@@ -941,7 +604,7 @@ struct Engine {
     void step_slice(int t, float dt, bool scatter, SliceOut& so) {
         const int A = cur, Bg = 1 - cur;
         Block blk;
-        ScatterBlock sb;
+        Scatter sb;
         VI lov[3], hiv[3];
         for (int a = 0; a < D; a++) lov[a] = splati(INT_BIG), hiv[a] = splati(-INT_BIG);
         V vmax2{};
@@ -954,7 +617,7 @@ struct Engine {
             block_weights(p, sb);
             block_nodes(p, cnt, A, sb);
             for (int i = 0; i < cnt; i++) gather_lane(i, A, sb, blk);
-            gather_finish(cnt, blk);
+            gather_finish(blk, cnt, inv_dx);
             VI live = vloadi(IOTA_) < cnt;
             // elastic predictor b* = F b F^T, F = I + dt C (eq. 52)
             V F[3][3];
