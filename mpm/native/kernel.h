@@ -386,14 +386,15 @@ struct Engine {
     void scatter_lane(int i, const Scatter& sb, int g, int t) {
         const Window& w = win[g];
         float* gr = &grid[g][((size_t)t * cap[g] + sb.node0[i]) * 4];
-        const RowTerms<D> r = row_terms(sb, i, P.mp);
-        const V U = r.Wk * r.CU + r.KWk * r.Qb + r.DWk * r.Rb;
+        V Wk, KWk, DWk, CU, Qb, Rb, A[D - 1], G[D - 1];
+        row_terms(sb, i, P.mp, Wk, KWk, DWk, CU, Qb, Rb, A, G);
+        V U = Wk * CU + KWk * Qb + DWk * Rb;
         if constexpr (D == 3) {
             // the weights are a tensor product: row (a0, a1) = w1[a1] X[a0] + w0[a0] Z[a1]
             V X[3], Z[3];
             for (int a = 0; a < 3; a++) {
-                X[a] = sb.w[0][a][i] * (U + (float)a * r.A[0]) + sb.dw[0][a][i] * r.G[0];
-                Z[a] = ((float)a * sb.w[1][a][i]) * r.A[1] + sb.dw[1][a][i] * r.G[1];
+                X[a] = sb.w[0][a][i] * (U + (float)a * A[0]) + sb.dw[0][a][i] * G[0];
+                Z[a] = ((float)a * sb.w[1][a][i]) * A[1] + sb.dw[1][a][i] * G[1];
             }
             for (int a0 = 0; a0 < 3; a0++)
                 for (int a1 = 0; a1 < 3; a1++) {
@@ -403,7 +404,7 @@ struct Engine {
                 }
         } else {
             for (int a0 = 0; a0 < 3; a0++) {
-                V row = sb.w[0][a0][i] * (U + (float)a0 * r.A[0]) + sb.dw[0][a0][i] * r.G[0];
+                V row = sb.w[0][a0][i] * (U + (float)a0 * A[0]) + sb.dw[0][a0][i] * G[0];
                 float* q = gr + w.row[a0];
                 vstore(q, vload(q) + row);
             }

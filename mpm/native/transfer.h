@@ -25,13 +25,10 @@ struct GatherBlock {
 #endif
 };
 
-// The operands of lane i's stencil rows in P2G: the weights along the last axis L on nodes 0..2 (Wk), k times them
-// (KWk) and their derivatives (DWk); the momentum with the mass (CU), the columns of m C (Qb) and S (Rb) along L
-// on every node; per leading axis a, Wk times the columns a of m C (A) and of S (G).
-template <int D>
-struct RowTerms {
-    V Wk, KWk, DWk, CU, Qb, Rb, A[D - 1], G[D - 1];
-};
+// row_terms gives the operands of lane i's stencil rows in P2G: the weights along the last axis L on nodes 0..2
+// (Wk), k times them (KWk) and their derivatives (DWk); the momentum with the mass (CU), the columns of m C (Qb) and
+// S (Rb) along L on every node; per leading axis a, Wk times the columns a of m C (A[a]) and of S (G[a]). (Out
+// parameters, not a returned struct: a struct of twelve 64-byte values stays in memory on the 16-byte paths.)
 
 #if VIRHEO_VEC_BYTES == 64
 // 16 rows of 4 floats (lane i's row at in[i]) -> 4 fields of 16 lanes (component c in comp[c])
@@ -89,17 +86,16 @@ VH_INLINE void scatter_rows(ScatterBlock<D>& sb, float mp) {
 }
 
 template <int D>
-VH_INLINE RowTerms<D> row_terms(const ScatterBlock<D>& sb, int i, float) {
+VH_INLINE void row_terms(const ScatterBlock<D>& sb, int i, float, V& Wk, V& KWk, V& DWk, V& CU, V& Qb, V& Rb, V* A,
+                         V* G) {
     constexpr int L = D - 1;
-    RowTerms<D> t;
     const float(*rows)[W][4] = sb.rows;
-    t.Wk = per_node(rows[0][i]), t.DWk = per_node(rows[1][i]), t.KWk = t.Wk * vload(NODE_INDEX_);
-    t.CU = on_every_node(rows[2][i]), t.Qb = on_every_node(rows[3][i]), t.Rb = on_every_node(rows[4][i]);
+    Wk = per_node(rows[0][i]), DWk = per_node(rows[1][i]), KWk = Wk * vload(NODE_INDEX_);
+    CU = on_every_node(rows[2][i]), Qb = on_every_node(rows[3][i]), Rb = on_every_node(rows[4][i]);
     for (int a = 0; a < L; a++) {
-        t.A[a] = t.Wk * on_every_node(rows[5 + 2 * a][i]);
-        t.G[a] = t.Wk * on_every_node(rows[6 + 2 * a][i]);
+        A[a] = Wk * on_every_node(rows[5 + 2 * a][i]);
+        G[a] = Wk * on_every_node(rows[6 + 2 * a][i]);
     }
-    return t;
 }
 
 // G2P: lane i's weights along L on nodes 0..2 (Wk) and their derivatives (DWk)
@@ -147,26 +143,25 @@ template <int D>
 VH_INLINE void scatter_rows(ScatterBlock<D>&, float) {}
 
 template <int D>
-VH_INLINE RowTerms<D> row_terms(const ScatterBlock<D>& sb, int i, float mp) {
+VH_INLINE void row_terms(const ScatterBlock<D>& sb, int i, float mp, V& Wk, V& KWk, V& DWk, V& CU, V& Qb, V& Rb, V* A,
+                         V* G) {
     constexpr int L = D - 1;
-    RowTerms<D> t;
     const float w0 = sb.w[L][0][i], w1 = sb.w[L][1][i], w2 = sb.w[L][2][i];
-    t.Wk = w0 * NODE0 + w1 * NODE1 + w2 * NODE2;
-    t.KWk = w1 * NODE1 + (2.0f * w2) * NODE2;
-    t.DWk = sb.dw[L][0][i] * NODE0 + sb.dw[L][1][i] * NODE1 + sb.dw[L][2][i] * NODE2;
-    t.CU = mp * COMP(D), t.Qb = V{}, t.Rb = V{};
+    Wk = w0 * NODE0 + w1 * NODE1 + w2 * NODE2;
+    KWk = w1 * NODE1 + (2.0f * w2) * NODE2;
+    DWk = sb.dw[L][0][i] * NODE0 + sb.dw[L][1][i] * NODE1 + sb.dw[L][2][i] * NODE2;
+    CU = mp * COMP(D), Qb = V{}, Rb = V{};
     for (int r = 0; r < D; r++) {
-        t.CU += sb.u[r][i] * COMP(r);
-        t.Qb += sb.mC[r][L][i] * COMP(r);
-        t.Rb += sb.S[r][L][i] * COMP(r);
+        CU += sb.u[r][i] * COMP(r);
+        Qb += sb.mC[r][L][i] * COMP(r);
+        Rb += sb.S[r][L][i] * COMP(r);
     }
     for (int a = 0; a < L; a++) {
         V ma{}, sa{};
         for (int r = 0; r < D; r++) ma += sb.mC[r][a][i] * COMP(r), sa += sb.S[r][a][i] * COMP(r);
-        t.A[a] = t.Wk * ma;
-        t.G[a] = t.Wk * sa;
+        A[a] = Wk * ma;
+        G[a] = Wk * sa;
     }
-    return t;
 }
 
 template <int D>
