@@ -9,13 +9,12 @@ from dataclasses import asdict, dataclass, fields, replace
 
 from mpm import runtime
 from mpm.params import check_flow_rule
-from mpm.ranges import check_cell_mm, check_modulus, check_ppc, check_within
+from mpm.ranges import SLIP_RANGE_M, check_cell_mm, check_modulus, check_ppc, check_within
 from mpm.scene import KAPPA_PA, MU_PA
 
 DEFAULT_CELL_MM = 1.5  # with one particle per cell per axis; chosen by measurement: docs/decisions.md#discretisation
 PARTICLES_PER_CELL = 1  # per axis (the reference implementation uses 2; see docs/method/forward-model.md)
 SLIP_LENGTH_M = 0.0  # Navier slip length of floor and walls (0: sticking); measured: docs/decisions.md#walls
-SLIP_RANGE_M = (0.0, 1.0)
 
 
 @dataclass(frozen=True)

@@ -11,6 +11,7 @@ import math
 DENSITY_RANGE_KG_M3 = (300.0, 5000.0)
 CELL_MM_RANGE = (0.2, 10.0)  # MPM cell width in mm (0.2 mm: about the particle budget of a 70 x 70 mm box)
 PPC_RANGE = (1, 4)  # particles per cell per axis
+SLIP_RANGE_M = (0.0, 1.0)  # Navier slip length of floor and walls (0: sticking)
 # elastic moduli kappa and mu (section 4.2: 1e4 and 1e3 Pa); the explicit time step shrinks as sqrt(modulus)
 MODULUS_RANGE_PA = (1e2, 1e6)
 # accepted for one simulation (SI): eta in Pa s^n, n dimensionless, sigma_y in Pa
