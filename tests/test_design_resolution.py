@@ -1,0 +1,65 @@
+"""virheo study design-resolution on the fake forward model: the gains follow from the stored stencil losses, a model
+compared with itself matches, runs with other models add to one folder, and a finished run resumes without
+simulating."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from similarity import information as I
+from studies import design_resolution as R
+
+TESTS = Path(__file__).resolve().parent
+ENV = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
+
+
+def _study(out, log, *models, materials="1"):
+    argv = [sys.executable, "-m", "studies.cli", "study", "design-resolution", "--models", *models, "--materials",
+            materials, "--workers", "0", "--quiet", "--out", str(out)]
+    proc = subprocess.run(argv, env=dict(ENV, FAKE_FORWARD_LOG=str(log)), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return proc.stdout
+
+
+def test_gains_follow_from_the_stencils_and_runs_add_to_one_folder(tmp_path):
+    out, log = tmp_path / "dr", tmp_path / "sims.log"
+    _study(out, log, "5:1")
+    first = log.read_text().splitlines()
+    probe = R.MATERIALS[0]
+    assert len(first) == len(set(first)) == 19 * len(R.setups_of(probe))  # footage + 18 stencil points per setup
+    stdout = _study(out, log, "4:1")
+    res = json.loads((out / "design_resolution.json").read_text())
+    recs = [R.SetupRecord.from_dict(c) for c in res["cases"]]
+    assert {r.model for r in recs} == {"5mm-1p", "4mm-1p"}
+    for label in ("5mm-1p", "4mm-1p"):
+        mine = {r.setup: r for r in recs if r.model == label}
+        assert set(mine) == {str(s) for s in R.setups_of(probe)}
+        h = [I.setup_hessian(np.array(mine[str(s)].stencil_losses, float), I.STEP) for s in R.setups_of(probe)]
+        np.testing.assert_allclose(mine[str(probe.first)].hessian, h[0], rtol=1e-12)
+        gains = I.log_det_gain(h[0], np.array(h[1:]))
+        scores = R.ModelScores.from_dict(res["summary"]["materials"][probe.slug][label])
+        np.testing.assert_allclose(scores.gains, gains, rtol=1e-9)
+        assert scores.argmax == scores.setups[int(np.argmax(gains))]
+        assert scores.trace_ratio == pytest.approx(np.trace(h[4]) / np.trace(h[1]))  # 70x70 over 20x20
+    s = res["summary"]
+    assert s["finest"] == "4mm-1p" and s["compared_materials"] == [probe.slug]
+    coarse = s["materials"][probe.slug]["5mm-1p"]
+    # the fake forward model does not depend on the discretisation: the coarse model ranks as the fine one
+    assert coarse["spearman_vs_finest"] == pytest.approx(1.0) and coarse["argmax_as_finest"] is True
+    assert s["matching"] == ["5mm-1p"] and s["cheapest_matching"] == "5mm-1p"
+    assert "cheapest model matching 4mm-1p: 5mm-1p" in stdout
+    before = log.read_text().splitlines()
+    _study(out, log, "5:1", "4:1")  # finished: read back, nothing simulated again
+    assert log.read_text().splitlines() == before
+
+
+def test_a_malformed_model_is_one_line_and_exit_2(tmp_path):
+    argv = [sys.executable, "-m", "studies.cli", "study", "design-resolution", "--models", "2.5", "--out",
+            str(tmp_path / "x")]
+    proc = subprocess.run(argv, env=ENV, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "CELL_MM:PPC" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
