@@ -195,6 +195,10 @@ class Setup:
         lo, hi = SETUP_RANGE_MM
         return lo <= self.width_mm <= hi and lo <= self.height_mm <= hi
 
+    def volume_ml(self, depth_mm: float = DEFAULT_DEPTH_MM) -> float:
+        """The material the box holds, W x H x depth, in millilitres (cm^3)."""
+        return self.width_mm * self.height_mm * float(depth_mm) / 1000.0
+
     def check_in_space(self) -> "Setup":
         """Raise ValueError naming the first dimension outside the setup space (20..70 mm)."""
         lo, hi = SETUP_RANGE_MM

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mpm.files import JsonRecord
 from mpm.params import SETUP_RANGE_MM, Material, Setup
 from surrogate.theta import ThetaMap, load
 
@@ -51,8 +52,50 @@ from .progress import first_line
 from .space import EXTENT, candidate_setups
 
 CRITERIA = ("perpendicularity", "eig")  # Theta-based, no simulation; "information": rank_by_simulation
+MIN_RUNOUT_MM = 5.0  # flow at the estimate that advances less than this over the footage is flagged: it hardly moves
 SIMULATION_PRESET = "demo"  # whose final model rank_by_simulation simulates by default (5 mm cells)
 DEFAULT_INFORMATION_SCALE = 1.0e4  # c without a posterior: a setup pins its normal to ~1 % of the box
+
+
+@dataclass(frozen=True)
+class SetupFacts:
+    """What the ``information`` criterion's own simulations at the estimate say about one setup."""
+
+    cpu_seconds: float  # per simulation at the criterion's model (median over the setup's simulations)
+    runout_mm: float  # advance of the flow front from the first to the last frame of the footage at the estimate
+    leaves_view: bool  # that footage's material reaches the image's side edge by the last frame (not in the first)
+
+    def flags(self) -> list[str]:
+        """Why the setup may not be worth filming, in words (empty: none)."""
+        out = []
+        if self.leaves_view:
+            out.append("leaves the camera's view before the last frame")
+        if self.runout_mm < MIN_RUNOUT_MM:
+            out.append(f"moves {self.runout_mm:.1f} mm (< {MIN_RUNOUT_MM:g} mm)")
+        return out
+
+
+def estimation_cpu_minutes(facts: dict, setups, generations: int) -> float | None:
+    """CPU minutes of one stage of Algorithm 1 (``generations`` x POPSIZE candidates) on ``setups`` at the model the
+    ``facts`` were measured with; None when a setup was not measured."""
+    from .cma_stage import POPSIZE
+
+    per = [facts.get(str(s)) for s in setups]
+    if any(f is None for f in per):
+        return None
+    return generations * POPSIZE * sum(f.cpu_seconds for f in per) / 60.0
+
+
+@dataclass
+class Candidate(JsonRecord):
+    """One of the best candidates as `virheo design` and the report show it."""
+
+    setup: str
+    score: float
+    volume_ml: float  # W x H x 40 mm
+    cost_cpu_min: float | None  # an estimation stage with it at the criterion's model (None: not simulated)
+    runout_mm: float | None  # flow of its footage at the estimate (None: not simulated)
+    flags: list | None  # SetupFacts.flags (None: not simulated)
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,6 +113,7 @@ class Ranking:
     information: np.ndarray | None = None  # "eig": Fisher information F_s (k, 3, 3) per candidate
     covariance: np.ndarray | None = None  # "eig": the current posterior covariance Sigma
     notes: tuple = ()  # one line per setup done that was left out (no normal at this material), or a fallback taken
+    facts: dict | None = None  # "information": str(setup) -> SetupFacts of the setups done and the candidates
 
     def __len__(self) -> int:
         return len(self.score)
@@ -82,6 +126,46 @@ class Ranking:
         """(setup, score) of the best candidate: the first minimum of S_p, or the first maximum of the gain."""
         i = int(np.nanargmax(self.score)) if self.higher_is_better else int(np.argmin(self.score))
         return Setup(float(self.width_mm[i]), float(self.height_mm[i])), float(self.score[i])
+
+    def setups(self) -> list[Setup]:
+        return [Setup(float(w), float(h)) for w, h in zip(self.width_mm, self.height_mm)]
+
+    def order(self) -> np.ndarray:
+        """Candidate indices, best first."""
+        return np.argsort(-self.score if self.higher_is_better else self.score, kind="stable")
+
+    def costs(self, generations: int) -> list:
+        """Per candidate, the CPU minutes of an estimation stage on the setups done and it
+        (:func:`estimation_cpu_minutes`); None where not measured (every entry without ``facts``)."""
+        if self.facts is None:
+            return [None] * len(self)
+        return [estimation_cpu_minutes(self.facts, [*self.done, c], generations) for c in self.setups()]
+
+    def top(self, k: int, generations: int) -> list[Candidate]:
+        """The ``k`` best candidates with the material they need, their estimation cost (``generations`` per stage)
+        and, where simulated, the flow of their footage at the estimate."""
+        setups, costs = self.setups(), self.costs(generations)
+        out = []
+        for i in self.order()[:k]:
+            s = setups[i]
+            facts = None if self.facts is None else self.facts.get(str(s))
+            out.append(Candidate(str(s), float(self.score[i]), round(s.volume_ml(), 1),
+                                 None if costs[i] is None else round(float(costs[i]), 2),
+                                 None if facts is None else round(facts.runout_mm, 1),
+                                 None if facts is None else facts.flags()))
+        return out
+
+    def subset(self, keep, note: str | None = None) -> "Ranking":
+        """The candidates where ``keep`` (a boolean array) holds; ValueError when none is left."""
+        from dataclasses import replace
+
+        keep = np.asarray(keep, bool)
+        if not keep.any():
+            raise ValueError(f"no candidate setup is left{': ' + note if note else ''}")
+        return replace(self, width_mm=self.width_mm[keep], height_mm=self.height_mm[keep], score=self.score[keep],
+                       normals=self.normals[keep],
+                       information=None if self.information is None else self.information[keep],
+                       notes=self.notes + ((note,) if note and not keep.all() else ()))
 
     def grid(self) -> np.ndarray:
         """S_p on the 51 x 51 candidate grid, rows = height, columns = width; NaN where invalid."""
@@ -221,24 +305,65 @@ def rank_setups(material, done, theta="reference", variant: str = "scaled", crit
     return Ranking(material, done, width[valid], height[valid], perpendicularity(q_done, q), q, q_done, notes=notes)
 
 
-def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_step: float | None = None, tick=None) -> Ranking:
-    """Score the setups of :func:`similarity.information.grid_setups` by the log det gain of their simulated FD
-    loss Hessians at ``material`` after the setups ``done`` (module docstring), simulated by ``forward`` with the
-    preset's final model; higher is better.  A setup whose simulations failed is left out."""
-    from similarity.information import STEP, grid_setups, predicted_gains
+def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_step: float | None = None, tick=None,
+                       setups=None) -> Ranking:
+    """Score ``setups`` (default: :func:`similarity.information.grid_setups`) by the log det gain of their simulated
+    FD loss Hessians at ``material`` after the setups ``done`` (module docstring), simulated by ``forward`` with the
+    preset's final model; higher is better.  A setup whose simulations failed is left out.  The ranking's ``facts``
+    hold each setup's measured CPU seconds per simulation and the flow of its footage at the estimate."""
+    from similarity.information import STEP, grid_setups, interior, predicted_gains
     from similarity.presets import get_preset
 
     material, done = _material(material), _setups(done)
-    setups = grid_setups()
-    gains = predicted_gains(material, done, setups, preset=get_preset(preset), forward=forward,
-                            fd_step=STEP if fd_step is None else fd_step, tick=tick)
+    setups = grid_setups() if setups is None else list(setups)
+    if not setups:
+        raise ValueError("no candidate setup to score")
+    step = STEP if fd_step is None else fd_step
+    seen = _FactCollector(interior(material, step), tick)
+    gains = predicted_gains(material, done, setups, preset=get_preset(preset), forward=forward, fd_step=step,
+                            tick=seen)
     ok = np.isfinite(gains)
     if not ok.any():
         raise ValueError(f"every simulation of the candidate setups around {material} failed")
     w = np.array([s.width_mm for s in setups])[ok]
     h = np.array([s.height_mm for s in setups])[ok]
     none = np.empty((int(ok.sum()), 3))
-    return Ranking(material, done, w, h, gains[ok], none, np.empty((len(done), 3)), "information")
+    return Ranking(material, done, w, h, gains[ok], none, np.empty((len(done), 3)), "information",
+                   facts=seen.facts())
+
+
+def _touches_side(frame) -> bool:
+    return bool(frame[:, 0].any() or frame[:, -1].any())
+
+
+class _FactCollector:
+    """A ``Forward`` ``on_result`` callback that keeps, per setup, the CPU seconds of its simulations and the footage
+    simulated at ``center``; passes every call on to ``tick``."""
+
+    def __init__(self, center: Material, tick=None):
+        self.center, self.tick = np.asarray(center.as_array(), float), tick
+        self.cpu: dict[str, list] = {}
+        self.footage: dict[str, object] = {}
+
+    def __call__(self, request, result, cached):
+        if result is not None:
+            key = str(Setup(request.width_mm, request.height_mm))
+            cpu = result.stats.get("cpu_s") if result.stats else None
+            self.cpu.setdefault(key, []).append(float(cpu if cpu is not None else result.wall_seconds))
+            if np.allclose([request.eta, request.n, request.sigma_y], self.center, rtol=1e-12, atol=0):
+                self.footage[key] = result
+        if self.tick:
+            self.tick(request, result, cached)
+
+    def facts(self) -> dict:
+        out = {}
+        for key, res in self.footage.items():
+            front, sil = res.front_m, res.silhouettes
+            runout = float((front[-1] - front[0]) * 1e3) if front is not None and len(front) else float("nan")
+            leaves = sil is not None and len(sil) > 0 and _touches_side(sil[-1]) and not _touches_side(sil[0])
+            cpu = [c for c in self.cpu.get(key, []) if np.isfinite(c)]
+            out[key] = SetupFacts(float(np.median(cpu)) if cpu else float("nan"), runout, bool(leaves))
+        return out
 
 
 def next_setup(material, done, theta="reference", criterion: str = "perpendicularity", covariance=None) -> Setup:

@@ -170,10 +170,13 @@ def grid_setups(values_mm=GRID_MM) -> list:
     return [Setup(float(w), float(h)) for h in values_mm for w in values_mm]
 
 
-def eig_nats(log_det_gain):
-    """The expected information gain in nats of a log det gain: EIG = 1/2 log det(I + Sigma F) in the
-    linear-Gaussian model whose precision is the summed Hessians."""
-    return 0.5 * log_det_gain
+def interior(material, fd_step: float = STEP):
+    """``material`` moved inward to ``fd_step`` from every face of the normalised space, so that every probe of the
+    FD stencil around it is a material of the space (the material the gains are computed at)."""
+    from mpm.params import Material
+    from similarity.space import denormalize, normalize
+
+    return Material.from_array(denormalize(np.clip(normalize(material.as_array()), fd_step, 1.0 - fd_step)))
 
 
 def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float = STEP, tick=None) -> np.ndarray:
@@ -184,12 +187,8 @@ def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float =
     in a small box), the ridge comes from the candidates instead (RIDGE x their largest eigenvalue), so that each
     candidate is scored by what it pins down on its own, with a warning; ValueError when no setup carries
     information."""
-    from mpm.params import Material
-    from similarity.space import denormalize, normalize
-
     done, setups = list(done), list(setups)
-    # an estimate on a face of the space moves inward by the step, so that every probe is a material of the space
-    estimate = Material.from_array(denormalize(np.clip(normalize(estimate.as_array()), fd_step, 1.0 - fd_step)))
+    estimate = interior(estimate, fd_step)
     try:
         losses = stencil_losses(estimate, done + setups, preset=preset, fd_step=fd_step, forward=forward, tick=tick)
     except RuntimeError as exc:  # the footage emulated at the estimate failed in some setup

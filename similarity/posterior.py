@@ -224,7 +224,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     from similarity.design import SIMULATION_PRESET, rank_by_simulation, rank_setups
     from similarity.ellipsoid import alignment, ellipsoid
     from similarity.fd_hessian import fd_hessian
-    from similarity.information import eig_nats
+    from similarity.presets import get_preset
     from similarity.estimate import simulated_frames
     from similarity.likelihood import noise_scale
     from similarity.normals import loss_normal
@@ -361,7 +361,9 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     try:
         info = rank_by_simulation(m_mean, run.setups, preset=SIMULATION_PRESET, forward=run.forward)
         best, gain = info.best()
-        next_info = {"setup": str(best), "log_det_gain": gain, "eig_nats": eig_nats(gain), "preset": SIMULATION_PRESET}
+        top = info.top(3, get_preset(SIMULATION_PRESET).generations)
+        next_info = {"setup": str(best), "log_det_gain": gain, "preset": SIMULATION_PRESET,
+                     "top": [t.to_dict() for t in top]}
     except ValueError as exc:
         next_info = {"error": str(exc).splitlines()[0]}
     summary = PosteriorSummary(

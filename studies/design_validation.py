@@ -78,9 +78,12 @@ def validation(criterion: str, theta: str, path=SUMMARY_FILE) -> dict | None:
 def reliability_line(v: dict | None) -> str:
     """How reliable the criterion proved, for users (a second line says when it proved weak), or "not validated"."""
     if v is None:
-        return ("reliability: not validated (virheo study design-information checked EIG with the published Theta map "
-                "and perpendicularity with the published and the fitted one)")
-    line = (f"reliability: within {100 * v['within_fraction']:.0f} % of the best candidate in {v['within']} of "
+        return ("reliability: not validated (virheo study design-information checked the information criterion with "
+                "the demo preset's model, EIG with the published Theta map and perpendicularity with the published and "
+                "the fitted one)")
+    line = ("reliability: not validated by estimation outcome (whether filming the proposal improves the estimate "
+            "has not been measured); in the simulator's own information (virheo study design-information) "
+            f"within {100 * v['within_fraction']:.0f} % of the best candidate in {v['within']} of "
             f"{v['materials']} validation materials, better than the candidates' mean in {v['beats_mean']} of "
             f"{v['materials']} (median normalised score {v['median_score']:.2f})")
     if v["sign_test_p"] >= 0.05:

@@ -237,7 +237,13 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
         info_line = "<br>".join(map(e, reliability_line(validation("information", "reference")).splitlines()))
         reliability += (f"<p>Setup of largest simulated information (the loss Hessians of 16 setups simulated at "
                         f"the posterior mean, {e(info['preset'])} preset's model): <b>{e(info['setup'])}</b> mm, "
-                        f"{info['eig_nats']:.4f} nats. {info_line}.</p>")
+                        f"log det gain {info['log_det_gain']:.4f} (a unitless score). {info_line}.</p>")
+        if info.get("top"):
+            reliability += ("<table><tr><th>setup</th><th>log det gain</th><th>material</th><th>CPU min per "
+                            "estimation stage</th><th>runout at the estimate</th><th>flags</th></tr>" + "".join(
+                                f"<tr><td>{e(t['setup'])} mm</td><td>{t['score']:.3f}</td><td>{t['volume_ml']:.0f} ml"
+                                f"</td><td>{t['cost_cpu_min']:.1f}</td><td>{t['runout_mm']:.0f} mm</td>"
+                                f"<td>{e('; '.join(t['flags'] or []))}</td></tr>" for t in info["top"]) + "</table>")
     elif info.get("error"):
         reliability += f"<p>Simulated information: not available ({e(info['error'])}).</p>"
     rheo = ""

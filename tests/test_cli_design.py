@@ -5,6 +5,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from PIL import Image
 
@@ -121,7 +122,18 @@ def test_design_information_simulates_its_grid_and_picks_its_best_gain(tmp_path,
     assert data["simulations"] == 17 * 19 and data["valid_candidates"] == 16
     best = data["next"]
     assert any(s.width_mm == best["width_mm"] and s.height_mm == best["height_mm"] for s in grid_setups())
-    assert data["expected_gain_nats"] == pytest.approx(0.5 * data["score"]) and data["score"] > 0
+    # the log det gain is a unitless score: no nats are printed for it
+    assert data["expected_gain_nats"] is None and data["score"] > 0 and "unitless" in data["score_unit"]
+    # the best three with the material they need, their estimation cost and the flow at the estimate
+    from mpm.params import Setup
+
+    top = data["top"]
+    assert len(top) == 3 and top[0]["setup"] == str(Setup(best["width_mm"], best["height_mm"]))
+    assert [t["score"] for t in top] == sorted((t["score"] for t in top), reverse=True)
+    for t in top:
+        s = Setup.parse(t["setup"])
+        assert t["volume_ml"] == pytest.approx(s.width_mm * s.height_mm * 40 / 1000, abs=0.05)
+        assert t["cost_cpu_min"] > 0 and isinstance(t["flags"], list) and np.isfinite(t["runout_mm"])
     assert (tmp_path / "g.png").stat().st_size > 5000
     # the shipped held-out figures of the simulated criterion, which proved strong
     from studies.design_validation import SUMMARY_FILE
@@ -139,3 +151,41 @@ def test_design_information_bad_workers_is_one_line(capsys):
                  "--workers", "-1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--workers -1" in err
+
+
+def test_design_information_keeps_within_the_volume_and_cost_asked(tmp_path, monkeypatch, capsys):
+    """--max-volume-ml leaves the bigger boxes unsimulated; --max-cost-min drops the setups whose measured estimation
+    cost is higher; nothing left is one line and exit 2."""
+    from mpm.params import Setup
+    from similarity.information import grid_setups
+
+    monkeypatch.syspath_prepend(str(REPO / "tests"))
+    monkeypatch.setenv("VIRHEO_SIMULATOR", "fake_forward:simulate")
+    base = ["design", "--material", "3.142,0.7394,1.243", "--done", "29x59", "--workers", "0", "--store",
+            str(tmp_path / "store"), "--json"]
+    assert main(base + ["--max-volume-ml", "60"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    small = [g for g in grid_setups() if g.volume_ml() <= 60]
+    assert data["valid_candidates"] == len(small) and data["simulations"] == 19 * (len(small) + 1)
+    assert all(Setup.parse(t["setup"]).volume_ml() <= 60 for t in data["top"])
+    assert main(base) == 0
+    full = json.loads(capsys.readouterr().out)
+    costs = sorted(t["cost_cpu_min"] for t in full["top"])
+    cap = (costs[0] + costs[-1]) / 2 if costs[0] < costs[-1] else costs[0]
+    assert main(base + ["--max-cost-min", str(cap)]) == 0
+    capped = json.loads(capsys.readouterr().out)
+    assert all(t["cost_cpu_min"] <= cap for t in capped["top"]) and capped["simulations"] == 0
+    assert main(base + ["--max-volume-ml", "10"]) == 2
+    assert "no candidate setup holds at most 10 ml" in capsys.readouterr().err
+    assert main(["design", "--material", "3,0.5,3", "--done", "29x59", "--criterion", "perpendicularity",
+                 "--max-cost-min", "5"]) == 2
+    assert "--max-cost-min needs --criterion information" in capsys.readouterr().err
+
+
+def test_setup_facts_flag_a_flow_that_leaves_the_view_or_hardly_moves():
+    from similarity.design import MIN_RUNOUT_MM, SetupFacts
+
+    assert SetupFacts(1.0, 30.0, False).flags() == []
+    assert "leaves the camera's view" in SetupFacts(1.0, 30.0, True).flags()[0]
+    assert SetupFacts(1.0, MIN_RUNOUT_MM - 0.1, False).flags() == [f"moves {MIN_RUNOUT_MM - 0.1:.1f} mm (< 5 mm)"]
+    assert SetupFacts(1.0, MIN_RUNOUT_MM, False).flags() == []

@@ -74,11 +74,13 @@ def test_posterior_summary_is_coherent(reported):
     lengths = s["ellipsoid_posterior"]["lengths"]
     assert lengths == sorted(lengths) and lengths[0] > 0
     assert s["next_setups_eig"] and s["next_setups_eig"][0]["eig_nats"] >= s["next_setups_eig"][-1]["eig_nats"]
-    # the simulated criterion: a setup of its grid, its gain in nats half the log det gain
+    # the simulated criterion: a setup of its grid, its log det gain a unitless score (no nats), its best three
     from similarity.information import grid_setups
     info = s["next_setup_information"]
     assert info["setup"] in {str(g) for g in grid_setups()} and info["preset"] == "demo"
-    assert info["eig_nats"] == pytest.approx(0.5 * info["log_det_gain"]) and info["log_det_gain"] > 0
+    assert "eig_nats" not in info and info["log_det_gain"] > 0
+    assert [t["setup"] for t in info["top"]][0] == info["setup"] and info["top"][0]["score"] == info["log_det_gain"]
+    assert all(t["volume_ml"] > 0 and t["cost_cpu_min"] > 0 for t in info["top"])
 
 
 def test_report_prints_the_simulated_next_setup(reported):
@@ -92,7 +94,9 @@ def test_report_prints_the_simulated_next_setup(reported):
     assert re.search(r"emulator checked on 8 simulated posterior draws \(\d fits\): [+-]\d+\.\d\d nats optimistic, "
                      r"(trusted|NOT trusted)", proc.stdout)
     info = json.loads((run / "posterior.json").read_text())["next_setup_information"]
-    assert f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats" in proc.stdout
+    assert (f"next setup by simulated information: {info['setup']} mm (log det gain {info['log_det_gain']:.3f}, a "
+            "unitless score") in proc.stdout
+    assert f"{info['top'][0]['volume_ml']:.0f} ml" in proc.stdout
     assert "Setup of largest simulated information" in (run / "report" / "index.html").read_text()
 
 

@@ -9,7 +9,7 @@ CRITERIA = ("information", "perpendicularity", "eig")
 
 
 def register(subparsers) -> None:
-    from studies.commands.context import PRESET_NAMES, integer
+    from studies.commands.context import PRESET_NAMES, integer, real
     from studies.design_validation import DEFAULT_CRITERION
 
     p = subparsers.add_parser(
@@ -47,6 +47,12 @@ def register(subparsers) -> None:
     p.add_argument("--store", default=None, metavar="PATH",
                    help="information: simulation store folder to reuse and fill (default: RUN/store with "
                    "--posterior RUN, else none)")
+    p.add_argument("--max-volume-ml", type=real, default=None, metavar="ML",
+                   help="only setups that hold at most ML millilitres of material (W x H x 40 mm depth)")
+    p.add_argument("--max-cost-min", type=real, default=None, metavar="MIN",
+                   help="information: only setups whose estimation stage (the preset's generations x 7 simulations of "
+                   "every setup, done ones included) costs at most MIN CPU minutes at the criterion's model, from the "
+                   "simulation times it measured")
     p.add_argument("--posterior", default=None, metavar="RUN",
                    help="run folder with posterior.json (virheo report): its posterior mean, covariance and setups "
                    "replace --material and --done")
@@ -56,6 +62,7 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from similarity.design import SIMULATION_PRESET, rank_setups
     from similarity.information import SIMULATIONS_PER_SETUP, grid_setups
+    from similarity.presets import get_preset
     from mpm.params import Material, Setup
     from studies.design_validation import reliability_line, validation
     from surrogate.theta import load
@@ -87,16 +94,34 @@ def run(args) -> int:
     if args.theta is not None and args.criterion == "information":
         raise ValueError("--theta chooses the Theta map of --criterion perpendicularity or eig; the default criterion, "
                          "information, simulates instead: add --criterion perpendicularity")
+    for name in ("max_volume_ml", "max_cost_min"):
+        if getattr(args, name) is not None and not getattr(args, name) > 0:
+            raise ValueError(f"--{name.replace('_', '-')} {getattr(args, name):g} must be > 0")
+    if args.max_cost_min is not None and args.criterion != "information":
+        raise ValueError("--max-cost-min needs --criterion information: its simulations measure what each setup costs")
     simulations, preset = 0, args.preset or SIMULATION_PRESET
+    volume_note = None if args.max_volume_ml is None else f"more than {args.max_volume_ml:g} ml (--max-volume-ml)"
     if args.criterion == "information":
-        ranking, simulations = simulated_ranking(material, done, args, preset)
+        grid = [g for g in grid_setups() if args.max_volume_ml is None or g.volume_ml() <= args.max_volume_ml]
+        if not grid:
+            raise ValueError(f"no candidate setup holds {volume_note.replace('more than', 'at most')}")
+        ranking, simulations = simulated_ranking(material, done, args, preset, grid)
     else:
         ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
+        if volume_note:
+            ranking = ranking.subset([s.volume_ml() <= args.max_volume_ml for s in ranking.setups()],
+                                     f"setups holding {volume_note}")
+    generations = get_preset(preset).generations
+    if args.max_cost_min is not None:
+        ranking = ranking.subset([c is not None and c <= args.max_cost_min for c in ranking.costs(generations)],
+                                 f"setups whose estimation stage costs more than {args.max_cost_min:g} CPU min "
+                                 "(--max-cost-min)")
     best, score = ranking.best()
+    top = ranking.top(TOP, generations)
     gain, gain_note = expected_gain(ranking, best, material, done, theta, covariance)
-    # the study validated the packaged maps only: a custom one is "not validated" (information uses no map)
-    validated = (validation(args.criterion, theta_name)
-                 if args.criterion == "information" or theta_name in ("reference", "fitted") else None)
+    # the study validated the packaged maps and the demo model only: others are "not validated"
+    validated = (validation(args.criterion, theta_name) if (args.criterion == "information" and preset == "demo")
+                 or (args.criterion != "information" and theta_name in ("reference", "fitted")) else None)
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
     if args.json:
@@ -109,7 +134,9 @@ def run(args) -> int:
             "simulations": simulations,
             "next": best.to_dict(),
             "score": score,
+            "score_unit": SCORE_UNIT[args.criterion],
             "expected_gain_nats": gain,
+            "top": [t.to_dict() for t in top],
             "validation": validated,
             "reliability": reliability_line(validated),
             "valid_candidates": len(ranking),
@@ -119,8 +146,8 @@ def run(args) -> int:
     else:
         label = {"perpendicularity": "S_p", "eig": "expected information gain [nats]",
                  "information": "predicted log det gain"}[args.criterion]
-        print(f"next setup: {best} mm (width x height), {label} = {score:.6f}")
-        how = (f"{SIMULATIONS_PER_SETUP * (len(done) + len(grid_setups()))} simulations ({simulations} run now) with "
+        print(f"next setup: {best} mm (width x height), {label} = {score:.6f} ({SCORE_UNIT[args.criterion]})")
+        how = (f"{SIMULATIONS_PER_SETUP * (len(done) + len(grid))} simulations ({simulations} run now) with "
                f"the {preset} preset's model" if args.criterion == "information" else f"Theta map: {theta.name}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; {how}")
@@ -130,13 +157,34 @@ def run(args) -> int:
                  else "linear-Gaussian model")
         print("  expected gain: " + (f"{gain:.3f} nats (expected information gain, {model})"
                                      if gain is not None else f"not available ({gain_note})"))
+        print(top_table(top, args.criterion, preset, generations))
         print("  " + reliability_line(validated))
         if plot_path:
             print(f"  heat map written to {plot_path}")
     return 0
 
 
-def simulated_ranking(material, done, args, preset):
+TOP = 3  # candidates printed with their volume, cost and flags
+SCORE_UNIT = {"perpendicularity": "S_p, unitless, lower is better",
+              "eig": "nats under the linear-Gaussian model",
+              "information": "a unitless score: the loss Hessians are not scaled by the footage's noise"}
+
+
+def top_table(top, criterion: str, preset: str, generations: int) -> str:
+    """The best candidates (:meth:`similarity.design.Ranking.top`) as indented lines."""
+    lines = [f"  best {len(top)}: setup, score, material needed, "
+             + (f"CPU minutes of an estimation stage ({generations} generations x 7 simulations of every setup at the "
+                f"{preset} preset's model, from measured times), flow at the estimate"
+                if criterion == "information" else "(cost and flow need --criterion information)")]
+    for t in top:
+        extra = "" if t.cost_cpu_min is None else f", {t.cost_cpu_min:.1f} CPU min"
+        if t.flags is not None:
+            extra += f", runout {t.runout_mm:.0f} mm" + (f" (flag: {'; '.join(t.flags)})" if t.flags else "")
+        lines.append(f"    {t.setup:>6} mm: {t.score:.4g}, {t.volume_ml:.0f} ml{extra}")
+    return "\n".join(lines)
+
+
+def simulated_ranking(material, done, args, preset, setups=None):
     """(the ``information`` ranking, simulations run): the simulator's information at ``material`` with the final
     model of ``preset``."""
     import warnings
@@ -159,17 +207,17 @@ def simulated_ranking(material, done, args, preset):
     with warnings.catch_warnings():
         report_data_losses()
         with Forward(store, workers=args.workers, simulator=simulator()) as forward:
-            return rank_by_simulation(material, done, preset=preset, forward=forward, tick=tick), count[0]
+            return (rank_by_simulation(material, done, preset=preset, forward=forward, tick=tick, setups=setups),
+                    count[0])
 
 
 def expected_gain(ranking, best, material, done, theta, covariance) -> tuple[float | None, str | None]:
-    """(expected information gain in nats of the chosen setup, why not): the ranking's own score for ``eig``, half
-    the log det gain for ``information``, else the EIG ranking's value at the chosen setup."""
+    """(expected information gain in nats of the chosen setup, why not): the ranking's own score for ``eig``, none
+    for ``information`` (its score is not calibrated in nats), else the EIG ranking's value at the chosen setup."""
     from similarity.design import rank_setups
-    from similarity.information import eig_nats
-
     if ranking.criterion == "information":
-        return eig_nats(float(ranking.best()[1])), None
+        return None, ("the simulated Hessians are not scaled by the footage's noise, so their log det gain is a "
+                      "unitless score, not nats")
     if ranking.criterion == "eig":
         return float(ranking.best()[1]), None
     try:

@@ -80,8 +80,12 @@ def run(args: argparse.Namespace) -> int:
         print("  " + reliability_line(validation("eig", "reference")))
     info = summary.next_setup_information or {}
     if info.get("setup"):
-        print(f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats, "
-              f"{info['preset']} preset's model)")
+        print(f"next setup by simulated information: {info['setup']} mm (log det gain {info['log_det_gain']:.3f}, a "
+              f"unitless score; {info['preset']} preset's model)")
+        for t in info.get("top", []):
+            flags = "; ".join(t["flags"] or [])
+            print(f"  {t['setup']:>6} mm: gain {t['score']:.3f}, {t['volume_ml']:.0f} ml, {t['cost_cpu_min']:.1f} CPU min "
+                  f"per estimation stage, runout {t['runout_mm']:.0f} mm" + (f" (flag: {flags})" if flags else ""))
         print("  " + reliability_line(validation("information", "reference")))
     elif info.get("error"):
         print(f"next setup by simulated information: not available ({info['error']})")
