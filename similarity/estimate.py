@@ -113,7 +113,7 @@ def _forward(forward: Forward | None) -> tuple[Forward, bool]:
 
 
 def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward | None = None,
-             generations: int | None = None, progress: Callable[[Event], None] | None = None,
+             generations: int | Sequence[int] | None = None, progress: Callable[[Event], None] | None = None,
              n_setups: int | None = None, acquire: Callable[[Setup], object] | None = None,
              propose: Callable[[Material, list], Setup | None] | None = Perpendicularity(),
              start: Material | None = None) -> Estimate:
@@ -126,7 +126,7 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
     ``Estimate.notes`` says why (:func:`skipped_proposal`).  With ``acquire``
     (a callable Setup -> experiment, e.g. an emulator) the proposed setup is filmed and added until
     ``n_setups`` are done.  ``generations`` overrides the preset's per-stage count (not the finishing
-    stage's).  ``forward``: the store and executor that simulate (default: the store under ~/.cache, one
+    stage's); a sequence gives stage k its k-th entry (the last one for later stages).  ``forward``: the store and executor that simulate (default: the store under ~/.cache, one
     worker process per CPU core).  ``start``: stage 1's CMA-ES mean (default: the centre of the material space),
     e.g. a rheometer's fit or an earlier estimate.  Returns the best evaluated candidate of the last stage.
     """
@@ -134,8 +134,9 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
     if not experiments:
         raise ValueError("estimate needs at least one experiment")
     preset = get_preset(preset)
-    generations = int(generations or preset.generations)
-    if generations < 1:
+    per_stage = [int(g) for g in (generations if isinstance(generations, (list, tuple)) else
+                                  [generations or preset.generations])]
+    if not per_stage or min(per_stage) < 1:
         raise ValueError(f"generations={generations} must be >= 1")
     n_setups = int(n_setups or len(experiments))
     forward, own = _forward(forward)
@@ -172,7 +173,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
             if stages:
                 x0, screened = warm_start(stages[-1], experiments[:k], model=preset.search, **common)
             stage = run_stage(experiments[:k], x0=x0, sigma0=preset.sigma0 * (2.0 / 3.0) ** (k - 1),
-                              model=preset.search, seed=seed + k - 1, generations=generations, stage_index=k,
+                              model=preset.search, seed=seed + k - 1, generations=per_stage[min(k, len(per_stage)) - 1],
+                              stage_index=k,
                               screened=screened, search_space=preset.search_space, **common)
             finish_stage(stage, [setup_of(e) for e in experiments[:k]])
             x0 = normalize(stage.material.as_array())

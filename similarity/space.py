@@ -72,6 +72,18 @@ def candidate_setups() -> tuple[np.ndarray, np.ndarray]:
     return w.ravel(), h.ravel()
 
 
+FLOW_ERROR_RATES = (1.0, 100.0, 50)  # shear rates of flow_curve_error: 1..100 1/s, 50 log-spaced points
+
+
+def flow_curve_error(truth, estimate, rates=FLOW_ERROR_RATES) -> float:
+    """RMS over log-spaced shear rates (lo, hi, count) of log10(stress of the estimate) - log10(stress of the truth),
+    stress by eq. 1: the error a user of the flow curve sees, the same anywhere along a similarity valley."""
+    gamma = np.geomspace(*rates[:2], int(rates[2]))
+    a, b = params.Material.of(truth), params.Material.of(estimate)
+    r = np.log10(b.stress(gamma)) - np.log10(a.stress(gamma))
+    return float(np.sqrt(np.mean(r * r)))
+
+
 def e_rel(truth, estimate) -> float:
     """Relative error E_rel between two materials, normalised by the material-space extents (eq. 44)."""
     a, b = params.material_array(truth), params.material_array(estimate)

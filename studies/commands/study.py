@@ -21,14 +21,15 @@ def register(subparsers) -> None:
     e.add_argument("--seed", type=seed, default=0, help="seed of the materials, setups and CMA-ES (default 0)")
     add_run_options(e, default_out="./virheo-emulation")
     e.set_defaults(func=run_emulation)
-    from studies.commands import (calibration, design_information, design_resolution, design_study, landscapes,
-                                  law_calibration)
+    from studies.commands import (calibration, design_information, design_outcome, design_resolution, design_study,
+                                  landscapes, law_calibration)
 
     landscapes.register(sub)
     calibration.register(sub)
     design_study.register(sub)
     design_information.register(sub)
     design_resolution.register(sub)
+    design_outcome.register(sub)
     law_calibration.register(sub)
 
 

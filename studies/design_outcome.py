@@ -1,0 +1,372 @@
+"""Does the recommended second setup give a better estimate?  Each design arm's second setup judged by the two-setup
+estimate it yields, on footage of a finer model, at equal CPU budget (pre-registered in docs/uncertainty.md,
+"Outcome study").
+
+Per material (:func:`draw`: half runny, half thick pastes, each with a random first setup) and CMA-ES seed:
+
+1. **footage** of setup 1, emulated with the footage model (default: 1.26 mm cells, two particles per axis,
+   sticking walls), so that the estimating model does not share the footage's discretisation;
+2. **stage 1**: Algorithm 1 on setup 1 at the preset's model (default ``survey``), shared by every arm;
+3. **each arm's second setup** from stage 1's estimate (:data:`ARMS`): ``information`` (the default criterion at
+   its own model), ``perpendicularity`` and ``eig`` (the published Theta map), ``largest`` (70x70 mm), ``random``
+   (two draws per material, the same for every seed) and ``repeat`` (setup 1 again: the null);
+4. **equal budget**: stage 2 (both setups, warm-started from stage 1) gets ``budget_cpu_s`` CPU seconds minus what the
+   criterion simulated, as whole generations of POPSIZE candidates at the measured CPU seconds per simulation of
+   the two setups (:func:`stage_2_generations`);
+5. **outcomes**: the flow-curve error against the truth over 1-100 1/s (:func:`similarity.space.flow_curve_error`,
+   primary), E_rel, the CPU seconds spent.
+
+The summary (:func:`verdict`) averages each arm's flow-curve error per material over the seeds (and the random
+draws), and tests each arm against ``random`` and ``perpendicularity`` (one-sided paired Wilcoxon signed-rank, and
+the bootstrap 90 % interval of the median paired difference).  Every case is kept in ``cases/mNN_sK/case.json`` and
+every simulation in the store: a killed study resumes where it stopped.  Writes ``design_outcome.json`` and
+``design_outcome.md``.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from mpm.files import JsonRecord
+from mpm.model import ForwardModel
+from mpm.params import DEFAULT_DENSITY_KG_M3 as DENSITY
+from mpm.params import SETUP_RANGE_MM, Material, Setup
+from similarity.space import e_rel, flow_curve_error
+from studies.study import Study
+
+ARMS = ("information", "perpendicularity", "eig", "largest", "random", "repeat")
+DEFAULT_ARM = "information"  # the shipped default criterion of `virheo design`
+RANDOM_DRAWS = 2
+LARGEST = Setup(70.0, 70.0)
+# the pre-registered draw: (eta range Pa s^n, log-uniform), n range, (sigma_y range Pa)
+RUNNY = ((0.5, 10.0), (0.35, 0.95), (0.5, 5.0))
+PASTE = ((5.0, 28.0), (0.35, 0.95), (15.0, 38.0))
+BOOTSTRAP = 10_000
+LEVEL = 0.90
+ALPHA = 0.05
+
+
+def draw(count: int, seed: int) -> list[tuple[Material, Setup]]:
+    """``count`` materials and first setups: the first half runny, the rest thick pastes; per material eta
+    (log-uniform), n, sigma_y, then the setup's width and height on the 1 mm grid, from ``default_rng(seed)``."""
+    rng = np.random.default_rng(int(seed))
+    lo, hi = SETUP_RANGE_MM
+    out = []
+    for i in range(int(count)):
+        (e0, e1), (n0, n1), (s0, s1) = RUNNY if i < count // 2 else PASTE
+        eta = float(np.exp(rng.uniform(np.log(e0), np.log(e1))))
+        n = float(rng.uniform(n0, n1))
+        sy = float(rng.uniform(s0, s1))
+        w, h = (float(v) for v in rng.integers(int(lo), int(hi) + 1, size=2))
+        out.append((Material(eta, n, sy), Setup(w, h)))
+    return out
+
+
+def random_setups(seed: int, index: int, first: Setup) -> list[Setup]:
+    """The ``random`` arm's draws for material ``index``: distinct, other than setup 1 (the same for every CMA-ES
+    seed)."""
+    from similarity.proposers import Random
+
+    out = []
+    for d in range(RANDOM_DRAWS):
+        out.append(Random([int(seed), int(index), d])(None, [first, *out]))
+    return out
+
+
+def stage_2_generations(budget_cpu_s: float, criterion_cpu_s: float, t_first: float, t_second: float) -> int:
+    """Whole generations of POPSIZE candidates on both setups that fit in the budget left after the criterion, at
+    least 1."""
+    from similarity.cma_stage import POPSIZE
+
+    per_generation = POPSIZE * (t_first + t_second)
+    left = budget_cpu_s - criterion_cpu_s
+    return max(1, int(math.floor(left / per_generation))) if per_generation > 0 else 1
+
+
+@dataclass
+class ArmRun(JsonRecord):
+    """One arm's two-setup estimate in one case."""
+
+    arm: str  # "random_0", "random_1" for the random draws
+    second_setup: str
+    fallback: str | None  # why the criterion could not propose (the first random draw was taken), or None
+    criterion_cpu_s: float
+    t_first_s: float  # CPU seconds of one simulation of setup 1 at the estimation model, at stage 1's estimate
+    t_second_s: float
+    generations: int  # of stage 2
+    stage_1_shared: bool  # its stage 1 is the case's stage 1 (served by the store)
+    estimate: Material
+    flow_error: float
+    e_rel: float
+    simulations: int
+    wall_seconds: float
+
+    READERS = {"estimate": lambda d: Material(**d)}
+
+
+@dataclass
+class OutcomeRecord(JsonRecord):
+    """One finished case: a material and a CMA-ES seed, stage 1 and every arm."""
+
+    config: dict
+    material_index: int
+    seed_index: int
+    truth: Material
+    first_setup: str
+    stage_1: Material
+    stage_1_flow_error: float
+    stage_1_e_rel: float
+    arms: list  # ArmRun
+    wall_seconds: float
+
+    READERS = {"truth": lambda d: Material(**d), "stage_1": lambda d: Material(**d),
+               "arms": lambda d: [ArmRun.from_dict(a) for a in d]}
+
+
+@dataclass
+class Comparison(JsonRecord):
+    """An arm against a reference arm over the materials (paired: arm minus reference, flow-curve error)."""
+
+    reference: str
+    materials: int
+    median_difference: float | None
+    interval: list | None  # bootstrap LEVEL interval of the median difference
+    wilcoxon_p: float | None  # one-sided: the arm's error is lower
+
+
+@dataclass
+class ArmSummary(JsonRecord):
+    median_flow_error: float
+    median_e_rel: float
+    per_material: list  # flow-curve error per material, averaged over seeds and draws
+    against: dict  # reference -> Comparison
+
+    READERS = {"against": lambda d: {k: Comparison.from_dict(v) for k, v in d.items()}}
+
+
+@dataclass
+class OutcomeSummary(JsonRecord):
+    materials: int
+    cases: int
+    arms: dict  # arm -> ArmSummary
+    best: str | None  # the arm of the lowest median flow-curve error
+    default_passes: bool | None
+    recommended: str | None  # the arm the study supports (None: none beat random)
+    verdict: str
+
+    READERS = {"arms": lambda d: {k: ArmSummary.from_dict(v) for k, v in d.items()}}
+
+
+def per_material(records: list[OutcomeRecord], field: str = "flow_error") -> dict:
+    """arm -> {material index -> mean of ``field`` over its seeds (and the random draws)}."""
+    acc: dict = {}
+    for r in records:
+        for a in r.arms:
+            arm = a.arm.split("_")[0]
+            acc.setdefault(arm, {}).setdefault(r.material_index, []).append(getattr(a, field))
+    return {arm: {m: float(np.mean(v)) for m, v in sorted(ms.items())} for arm, ms in acc.items()}
+
+
+def compare(arm: dict, reference: dict, name: str, seed: int = 62) -> Comparison:
+    """Paired comparison of two arms' per-material errors (:class:`Comparison`)."""
+    from scipy.stats import wilcoxon
+
+    common = sorted(set(arm) & set(reference))
+    d = np.array([arm[m] - reference[m] for m in common])
+    if not len(d):
+        return Comparison(name, 0, None, None, None)
+    rng = np.random.default_rng(seed)
+    boots = np.median(d[rng.integers(0, len(d), size=(BOOTSTRAP, len(d)))], axis=1)
+    tail = (1 - LEVEL) / 2
+    p = float(wilcoxon(d, alternative="less").pvalue) if np.any(d != 0) else 1.0
+    return Comparison(name, len(d), float(np.median(d)), [float(np.quantile(boots, tail)),
+                                                          float(np.quantile(boots, 1 - tail))], p)
+
+
+def verdict(records: list[OutcomeRecord]) -> OutcomeSummary:
+    """The pre-registered test and pass rule (module docstring; docs/uncertainty.md)."""
+    flow, erel = per_material(records), per_material(records, "e_rel")
+    arms = {}
+    for arm in ARMS:
+        if arm not in flow:
+            continue
+        against = {ref: compare(flow[arm], flow[ref], ref) for ref in ("random", "perpendicularity")
+                   if ref in flow and ref != arm}
+        arms[arm] = ArmSummary(float(np.median(list(flow[arm].values()))), float(np.median(list(erel[arm].values()))),
+                               [flow[arm][m] for m in sorted(flow[arm])], against)
+    best = min(arms, key=lambda a: arms[a].median_flow_error) if arms else None
+
+    def beats_random(a: str) -> bool:
+        c = arms[a].against.get("random")
+        return c is not None and c.wilcoxon_p is not None and c.wilcoxon_p < ALPHA
+
+    passes = None
+    if DEFAULT_ARM in arms and best is not None:
+        vs_best = (compare(flow[DEFAULT_ARM], flow[best], best) if best != DEFAULT_ARM else None)
+        no_worse = vs_best is None or (vs_best.interval is not None and vs_best.interval[0] <= 0.0)
+        passes = beats_random(DEFAULT_ARM) and no_worse
+    if passes:
+        recommended, text = DEFAULT_ARM, f"the default, {DEFAULT_ARM}, passes: it beats random and is no worse than the best arm"
+    elif best is not None and best != "random" and beats_random(best):
+        recommended, text = best, f"{best} wins: it beats random and has the lowest median flow-curve error"
+    else:
+        recommended = None
+        text = ("no arm beats random on the flow-curve error (p < 0.05)" + (f"; the lowest median error: {best}"
+                                                                          if best else ""))
+    return OutcomeSummary(len({r.material_index for r in records}), len(records), arms, best, passes, recommended, text)
+
+
+@dataclass(frozen=True)
+class OutcomeCase:
+    index: int
+    seed_index: int
+    truth: Material
+    first: Setup
+    folder: Path
+
+
+class DesignOutcome(Study):
+    name = "design_outcome"
+    record = OutcomeRecord
+    case_files = ("cases/m*_s*/case.json",)
+
+    def __init__(self, out, config: dict | None = None):
+        super().__init__(out, config)
+
+    def cases(self):
+        c = self.config
+        for i, (truth, first) in enumerate(draw(c["materials"], c["seed"])):
+            for k in range(c["seeds"]):
+                yield OutcomeCase(i, k, truth, first, self.out / "cases" / f"m{i:02d}_s{k}")
+
+    def announce(self, case) -> str:
+        return f"material {case.index} ({case.truth}), setup 1 {case.first}, seed {case.seed_index}"
+
+    def report(self, record) -> str:
+        return (f"material {record.material_index} seed {record.seed_index}: flow-curve error "
+                + ", ".join(f"{a.arm} {a.flow_error:.3f}" for a in record.arms))
+
+    def run_case(self, case, *, forward, progress=None):
+        return run_case(case, self.config, forward=forward, progress=progress)
+
+    def summary(self, records):
+        return verdict(records)
+
+    def table(self, records, summary) -> str:
+        lines = ["# Does the recommended second setup give a better estimate?", "",
+                 f"{summary.materials} materials, {summary.cases} cases. Flow-curve error: RMS of log10 stress over "
+                 "1-100 1/s against the truth, per material averaged over the seeds (and the random draws).", "",
+                 "| arm | median flow-curve error | median E_rel | vs random: median difference [90 % interval], "
+                 "Wilcoxon p | vs perpendicularity |", "|---|---:|---:|---|---|"]
+        for arm, s in summary.arms.items():
+            cells = []
+            for ref in ("random", "perpendicularity"):
+                c = s.against.get(ref)
+                cells.append("" if c is None or c.median_difference is None else
+                             f"{c.median_difference:+.3f} [{c.interval[0]:+.3f}, {c.interval[1]:+.3f}], "
+                             f"p = {c.wilcoxon_p:.3g}")
+            lines.append(f"| {arm} | {s.median_flow_error:.3f} | {s.median_e_rel:.3f} | {cells[0]} | {cells[1]} |")
+        lines += ["", f"Verdict: {summary.verdict}.", ""]
+        return "\n".join(lines)
+
+    def plots(self, records, summary) -> None:
+        return None
+
+
+def _cpu(result) -> float:
+    cpu = result.stats.get("cpu_s") if result.stats else None
+    return float(cpu if cpu is not None else result.wall_seconds)
+
+
+def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> OutcomeRecord:
+    """Stage 1 and every arm of one case."""
+    from similarity.design import SIMULATION_PRESET, rank_by_simulation
+    from similarity.emulation import emulate
+    from similarity.estimate import estimate, get_preset
+    from similarity.presets import filming
+    from similarity.proposers import Eig, Perpendicularity
+
+    t0 = time.perf_counter()
+    preset = get_preset(config["preset"])
+    footage_model = ForwardModel(*config["footage_model"])
+    film = filming(preset, footage_model, "outcome-footage")
+    shots: dict = {}
+
+    def footage(setup: Setup):
+        if str(setup) not in shots:
+            shots[str(setup)] = emulate(case.truth, [setup], density=DENSITY, preset=film, forward=forward)[0]
+        return shots[str(setup)]
+
+    first = footage(case.first)
+    g1 = config["stage_1_generations"]
+    seed = int(case.seed_index)
+    s1 = estimate([first], preset=preset, seed=seed, forward=forward, generations=g1, n_setups=1, propose=None,
+                  progress=progress)
+    m1 = s1.material
+
+    def cpu_at(setup: Setup) -> float:
+        return _cpu(forward.results(m1, [footage(setup)], preset.search)[0])
+
+    randoms = random_setups(config["seed"], case.index, case.first)
+    picks: list[tuple[str, Setup, str | None, float]] = []  # arm, setup, fallback, criterion CPU s
+    for arm in ARMS:
+        fallback, cost = None, 0.0
+        try:
+            if arm == "information":
+                ranking = rank_by_simulation(m1, [case.first], preset=config["criterion_preset"] or SIMULATION_PRESET,
+                                             forward=forward)
+                setup = ranking.best()[0]
+                cost = 19.0 * sum(f.cpu_seconds for f in ranking.facts.values())
+            elif arm == "perpendicularity":
+                setup = Perpendicularity("reference")(m1, [case.first])
+            elif arm == "eig":
+                setup = Eig(len(first.frames), "reference")(m1, [case.first], stage=s1.stages[0])
+            elif arm == "largest":
+                setup = LARGEST
+            elif arm == "repeat":
+                setup = case.first
+            else:
+                for d, r in enumerate(randoms):
+                    picks.append((f"random_{d}", r, None, 0.0))
+                continue
+        except ValueError as exc:
+            setup, fallback = randoms[0], str(exc).splitlines()[0]
+        picks.append((arm, Setup(setup.width_mm, setup.height_mm), fallback, cost))
+
+    t_first = cpu_at(case.first)
+    runs = []
+    for arm, setup, fallback, cost in picks:
+        t1 = time.perf_counter()
+        t_second = cpu_at(setup)
+        g2 = stage_2_generations(config["budget_cpu_s"], cost, t_first, t_second)
+        before = forward.simulations_run
+        est = estimate([first, footage(setup)], preset=preset, seed=seed, forward=forward, generations=[g1, g2],
+                       n_setups=2, propose=None, progress=progress)
+        runs.append(ArmRun(arm, str(setup), fallback, cost, t_first, t_second, g2, est.stages[0].material == m1,
+                           est.material,
+                           flow_curve_error(case.truth, est.material), e_rel(case.truth, est.material),
+                           forward.simulations_run - before, time.perf_counter() - t1))
+    return OutcomeRecord(config, case.index, case.seed_index, case.truth, str(case.first), m1,
+                         flow_curve_error(case.truth, m1), e_rel(case.truth, m1), runs, time.perf_counter() - t0)
+
+
+def run_study(out, *, materials: int = 8, seeds: int = 2, seed: int = 62, preset: str = "survey",
+              footage_model: ForwardModel = ForwardModel(1.26, 2), criterion_preset: str | None = None,
+              stage_1_generations: int = 12, budget_cpu_s: float = 150.0, simulator: str | None = None, forward,
+              progress=None) -> dict:
+    """Run (or resume) the study in ``out`` case by case; returns what ``design_outcome.json`` holds."""
+    from similarity.estimate import get_preset
+
+    if materials < 2 or seeds < 1 or stage_1_generations < 1 or not budget_cpu_s > 0:
+        raise ValueError("--materials >= 2, --seeds >= 1, --stage-1-generations >= 1 and --budget-cpu-s > 0")
+    if forward.store is None:
+        raise ValueError("the outcome study needs a simulation store (stage 1 is shared by the arms through it)")
+    config = {"materials": int(materials), "seeds": int(seeds), "seed": int(seed), "preset": get_preset(preset).name,
+              "footage_model": [footage_model.cell_mm, footage_model.ppc], "criterion_preset": criterion_preset,
+              "stage_1_generations": int(stage_1_generations), "budget_cpu_s": float(budget_cpu_s),
+              "simulator": simulator, "arms": list(ARMS)}
+    return DesignOutcome(out, config).run(forward=forward, progress=progress)

@@ -1,0 +1,106 @@
+"""The design outcome study: the pre-registered draw, the equal budget, the outcomes and the test follow from their
+definitions; the quick mode runs end to end on the fake forward model and resumes without simulating."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mpm.params import Material, Setup
+from similarity.space import flow_curve_error
+from studies import design_outcome as O
+
+TESTS = Path(__file__).resolve().parent
+ENV = dict(os.environ, PYTHONPATH=f"{TESTS}{os.pathsep}{TESTS.parent}", VIRHEO_SIMULATOR="fake_forward:simulate")
+
+
+def test_flow_curve_error_is_the_log_ratio_of_proportional_curves():
+    truth = Material(2.0, 0.6, 5.0)
+    for c in (0.5, 1.0, 3.0):  # eta and sigma_y scaled alike: the stress is c times the truth's at every rate
+        assert flow_curve_error(truth, Material(2.0 * c, 0.6, 5.0 * c)) == pytest.approx(abs(np.log10(c)), abs=1e-12)
+    # against quadrature of the squared log error over log-spaced rates
+    est = Material(1.0, 0.8, 2.0)
+    g = np.geomspace(1, 100, 50)
+    r = np.log10(est.stress(g)) - np.log10(truth.stress(g))
+    assert flow_curve_error(truth, est) == pytest.approx(np.sqrt(np.mean(r ** 2)), rel=1e-12)
+
+
+def test_the_draw_is_the_registered_one():
+    drawn = O.draw(8, 62)
+    assert drawn == O.draw(8, 62) and drawn != O.draw(8, 63)
+    for i, (m, s) in enumerate(drawn):
+        (e0, e1), (n0, n1), (s0, s1) = O.RUNNY if i < 4 else O.PASTE
+        assert e0 <= m.eta <= e1 and n0 <= m.n <= n1 and s0 <= m.sigma_y <= s1 and s.in_space()
+    rng = np.random.default_rng(62)  # the order of the draws: eta, n, sigma_y, width, height per material
+    eta = np.exp(rng.uniform(np.log(0.5), np.log(10.0)))
+    assert drawn[0][0].eta == pytest.approx(eta)
+    for i, (m, s) in enumerate(drawn):
+        r = O.random_setups(62, i, s)
+        assert len({str(x) for x in r}) == 2 and str(s) not in {str(x) for x in r}
+
+
+def test_stage_2_gets_what_the_budget_leaves():
+    from similarity.cma_stage import POPSIZE
+
+    assert O.stage_2_generations(150.0, 0.0, 1.0, 2.0) == 150 // (POPSIZE * 3)
+    assert O.stage_2_generations(150.0, 60.0, 1.0, 2.0) == 90 // (POPSIZE * 3)
+    assert O.stage_2_generations(10.0, 60.0, 1.0, 2.0) == 1  # at least one generation
+
+
+def test_the_paired_test_and_the_pass_rule():
+    lower = {m: 0.1 for m in range(8)}
+    higher = {m: 0.3 + 0.01 * m for m in range(8)}
+    c = O.compare(lower, higher, "random")
+    from scipy.stats import wilcoxon
+
+    assert c.median_difference == pytest.approx(-0.235) and c.interval[1] < 0
+    assert c.wilcoxon_p == pytest.approx(wilcoxon(np.array(list(lower.values())) - np.array(list(higher.values())),
+                                                  alternative="less").pvalue) and c.wilcoxon_p < 0.05
+
+    def record(m, errors):
+        arms = [O.ArmRun(a, "30x30", None, 0.0, 1.0, 1.0, 1, True, Material(1, 1, 1), e, e, 1, 0.0)
+                for a, e in errors.items()]
+        return O.OutcomeRecord({}, m, 0, Material(1, 1, 1), "20x20", Material(1, 1, 1), 0.0, 0.0, arms, 0.0)
+
+    good = [record(m, {"information": 0.1, "perpendicularity": 0.3, "random_0": 0.3 + 0.01 * m,
+                       "random_1": 0.3 + 0.01 * m}) for m in range(8)]
+    s = O.verdict(good)
+    assert s.default_passes and s.recommended == "information" and s.best == "information"
+    tie = [record(m, {"information": 0.3, "perpendicularity": 0.3, "random_0": 0.3, "random_1": 0.3})
+           for m in range(8)]
+    s = O.verdict(tie)
+    assert s.default_passes is False and s.recommended is None and "no arm beats random" in s.verdict
+
+
+def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
+    out, log = tmp_path / "do", tmp_path / "sims.log"
+    argv = [sys.executable, "-m", "studies.cli", "study", "design-outcome", "--materials", "2", "--seeds", "1",
+            "--footage-model", "5:1", "--preset", "demo", "--stage-1-generations", "2", "--budget-cpu-s", "2",
+            "--workers", "0", "--quiet", "--out", str(out)]
+    env = dict(ENV, FAKE_FORWARD_LOG=str(log))
+    proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    res = json.loads((out / "design_outcome.json").read_text())
+    recs = [O.OutcomeRecord.from_dict(c) for c in res["cases"]]
+    assert len(recs) == 2
+    for r in recs:
+        arms = {a.arm: a for a in r.arms}
+        assert set(arms) == {"information", "perpendicularity", "eig", "largest", "random_0", "random_1", "repeat"}
+        assert arms["repeat"].second_setup == r.first_setup and arms["largest"].second_setup == "70x70"
+        assert [arms[f"random_{d}"].second_setup for d in range(2)] == [
+            str(s) for s in O.random_setups(62, r.material_index, Setup.parse(r.first_setup))]
+        for a in r.arms:
+            assert a.stage_1_shared
+            assert a.flow_error == pytest.approx(flow_curve_error(r.truth, a.estimate))
+            assert a.generations == O.stage_2_generations(2.0, a.criterion_cpu_s, a.t_first_s, a.t_second_s)
+        assert arms["information"].criterion_cpu_s > 0 and arms["perpendicularity"].criterion_cpu_s == 0
+    flow = O.per_material(recs)
+    assert flow["random"][0] == pytest.approx(np.mean([a.flow_error for a in recs[0].arms if a.arm.startswith("random")]))
+    assert res["summary"]["arms"]["information"]["per_material"] == [flow["information"][m] for m in (0, 1)]
+    before = log.read_text().splitlines()
+    proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0 and log.read_text().splitlines() == before
+    assert "Verdict:" in proc.stdout
