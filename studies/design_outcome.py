@@ -14,7 +14,9 @@ Per material (:func:`draw`: half runny, half thick pastes, each with a random fi
    criterion simulated, as whole generations of POPSIZE candidates at the measured CPU seconds per simulation of
    the two setups (:func:`stage_2_generations`);
 5. **outcomes**: the flow-curve error against the truth over 1-100 1/s (:func:`similarity.space.flow_curve_error`,
-   primary), E_rel, the CPU seconds spent.
+   primary), E_rel, the CPU seconds spent; after every case, for :func:`posterior_materials` and seed 0, each arm's
+   posterior (`virheo report`'s analysis of the two-setup run, filmed into ``posterior/mNN_ARM/``): the 90 % flow
+   band's width at 10 1/s and whether the truth lies inside (``posterior/mNN_ARM.json``).
 
 The summary (:func:`verdict`) averages each arm's flow-curve error per material over the seeds (and the random
 draws), and tests each arm against ``random`` and ``perpendicularity`` (one-sided paired Wilcoxon signed-rank, and
@@ -220,6 +222,31 @@ def verdict(records: list[OutcomeRecord]) -> OutcomeSummary:
     return OutcomeSummary(len({r.material_index for r in records}), len(records), arms, best, passes, recommended, text)
 
 
+@dataclass
+class PosteriorOutcome(JsonRecord):
+    """The posterior of one arm's two-setup run (`virheo report`'s analysis, default options)."""
+
+    material_index: int
+    arm: str
+    setups: list
+    estimate: Material
+    band_width_10: float  # 95th over 5th percentile stress of the 90 % flow band at 10 1/s
+    truth_inside_10: bool  # the true stress at 10 1/s lies within that band
+    wall_seconds: float
+
+    READERS = {"estimate": lambda d: Material(**d)}
+
+
+POSTERIORS = 4  # materials with a posterior outcome (pre-registered)
+
+
+def posterior_materials(count: int, posteriors: int = POSTERIORS) -> list[int]:
+    """The materials with a posterior outcome: the first half of ``posteriors`` among the runny materials, the rest
+    among the pastes (0, 1, 4, 5 of 8 by default)."""
+    half, runny = count // 2, (posteriors + 1) // 2
+    return sorted({*range(min(runny, half)), *range(half, min(half + posteriors - runny, count))})
+
+
 @dataclass(frozen=True)
 class OutcomeCase:
     index: int
@@ -234,8 +261,9 @@ class DesignOutcome(Study):
     record = OutcomeRecord
     case_files = ("cases/m*_s*/case.json",)
 
-    def __init__(self, out, config: dict | None = None):
+    def __init__(self, out, config: dict | None = None, *, posteriors: int = POSTERIORS):
         super().__init__(out, config)
+        self.n_posteriors = int(posteriors)
 
     def cases(self):
         c = self.config
@@ -252,6 +280,32 @@ class DesignOutcome(Study):
 
     def run_case(self, case, *, forward, progress=None):
         return run_case(case, self.config, forward=forward, progress=progress)
+
+    def after_cases(self, records, *, forward, progress=None) -> None:
+        """The posterior outcome of every arm of seed 0 for :func:`posterior_materials`, one file each."""
+        from mpm.files import write_json
+        from studies.study import tell
+
+        for r in records:
+            if r.seed_index != 0 or r.material_index not in posterior_materials(self.config["materials"],
+                                                                                self.n_posteriors):
+                continue
+            for a in r.arms:
+                path = self.out / "posterior" / f"m{r.material_index:02d}_{a.arm}.json"
+                if path.is_file():
+                    continue
+                tell(progress, f"posterior: material {r.material_index}, {a.arm}")
+                write_json(path, posterior_outcome(r, a, self.config, self.out / "posterior" /
+                                                   f"m{r.material_index:02d}_{a.arm}", forward=forward))
+
+    def posteriors(self) -> list[PosteriorOutcome]:
+        from mpm.files import read_json
+
+        return [PosteriorOutcome.from_dict(read_json(p)) for p in sorted((self.out / "posterior").glob("m*.json"))]
+
+    def result(self, records, summary, wall_seconds):
+        return super().result(records, summary, wall_seconds) | {
+            "posterior": [p.to_dict() for p in self.posteriors()]}
 
     def summary(self, records):
         return verdict(records)
@@ -271,6 +325,18 @@ class DesignOutcome(Study):
                              f"p = {c.wilcoxon_p:.3g}")
             lines.append(f"| {arm} | {s.median_flow_error:.3f} | {s.median_e_rel:.3f} | {cells[0]} | {cells[1]} |")
         lines += ["", f"Verdict: {summary.verdict}.", ""]
+        post = self.posteriors()
+        if post:
+            lines += ["Posterior of each arm's two-setup run (seed 0): the 90 % flow band's width at 10 1/s (95th over "
+                      "5th percentile stress) and whether the true stress lies inside.", "",
+                      "| arm | materials | median band width at 10 1/s | truth inside |", "|---|---:|---:|---:|"]
+            for arm in ARMS:
+                mine = [p for p in post if p.arm.split("_")[0] == arm]
+                if mine:
+                    lines.append(f"| {arm} | {len({p.material_index for p in mine})} | "
+                                 f"{np.median([p.band_width_10 for p in mine]):.2f} | "
+                                 f"{sum(p.truth_inside_10 for p in mine)}/{len(mine)} |")
+            lines.append("")
         return "\n".join(lines)
 
     def plots(self, records, summary) -> None:
@@ -354,11 +420,40 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
                          flow_curve_error(case.truth, m1), e_rel(case.truth, m1), runs, time.perf_counter() - t0)
 
 
+def posterior_outcome(record: OutcomeRecord, arm: ArmRun, config: dict, folder: Path, *, forward
+                      ) -> PosteriorOutcome:
+    """Film the arm's two setups into ``folder``, estimate there as the case did (the store serves it), write the
+    run's result.json and analyse it as `virheo report` does."""
+    from mpm.files import write_json
+    from similarity.emulation import film
+    from similarity.estimate import estimate, get_preset
+    from similarity.posterior import analyse
+    from similarity.presets import filming
+
+    t0 = time.perf_counter()
+    preset = get_preset(config["preset"])
+    shoot = filming(preset, ForwardModel(*config["footage_model"]), "outcome-footage")
+    setups = [Setup.parse(record.first_setup), Setup.parse(arm.second_setup)]
+    experiments = [film(record.truth, s, folder, preset=shoot, forward=forward, density=DENSITY) for s in setups]
+    est = estimate(experiments, preset=preset, seed=int(record.seed_index), forward=forward,
+                   generations=[config["stage_1_generations"], arm.generations], n_setups=2, propose=None)
+    write_json(folder / "result.json", est.to_dict() | {
+        "folders": [str(Path(e.path).resolve()) for e in experiments], "simulator": config["simulator"],
+        "truth": record.truth.to_dict(), "e_rel": e_rel(record.truth, est.material)})
+    summary = analyse(folder, forward=forward).summary
+    i = int(np.argmin(np.abs(np.asarray(summary.flow_band["shear_rate"]) - 10.0)))
+    lo, hi = summary.flow_band["5"][i], summary.flow_band["95"][i]
+    true = float(record.truth.stress(summary.flow_band["shear_rate"][i]))
+    return PosteriorOutcome(record.material_index, arm.arm, [str(s) for s in setups], est.material,
+                            summary.band_width(10.0), bool(lo <= true <= hi), time.perf_counter() - t0)
+
+
 def run_study(out, *, materials: int = 8, seeds: int = 2, seed: int = 62, preset: str = "survey",
               footage_model: ForwardModel = ForwardModel(1.26, 2), criterion_preset: str | None = None,
-              stage_1_generations: int = 12, budget_cpu_s: float = 150.0, simulator: str | None = None, forward,
-              progress=None) -> dict:
-    """Run (or resume) the study in ``out`` case by case; returns what ``design_outcome.json`` holds."""
+              stage_1_generations: int = 12, budget_cpu_s: float = 150.0, posteriors: int = POSTERIORS,
+              simulator: str | None = None, forward, progress=None) -> dict:
+    """Run (or resume) the study in ``out`` case by case, then the posterior outcomes of ``posteriors`` materials;
+    returns what ``design_outcome.json`` holds."""
     from similarity.estimate import get_preset
 
     if materials < 2 or seeds < 1 or stage_1_generations < 1 or not budget_cpu_s > 0:
@@ -369,4 +464,6 @@ def run_study(out, *, materials: int = 8, seeds: int = 2, seed: int = 62, preset
               "footage_model": [footage_model.cell_mm, footage_model.ppc], "criterion_preset": criterion_preset,
               "stage_1_generations": int(stage_1_generations), "budget_cpu_s": float(budget_cpu_s),
               "simulator": simulator, "arms": list(ARMS)}
-    return DesignOutcome(out, config).run(forward=forward, progress=progress)
+    if not 0 <= posteriors <= materials:
+        raise ValueError(f"--posteriors {posteriors} must be within 0..--materials")
+    return DesignOutcome(out, config, posteriors=posteriors).run(forward=forward, progress=progress)

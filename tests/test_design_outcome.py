@@ -79,7 +79,7 @@ def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
     out, log = tmp_path / "do", tmp_path / "sims.log"
     argv = [sys.executable, "-m", "studies.cli", "study", "design-outcome", "--materials", "2", "--seeds", "1",
             "--footage-model", "5:1", "--preset", "demo", "--stage-1-generations", "2", "--budget-cpu-s", "2",
-            "--workers", "0", "--quiet", "--out", str(out)]
+            "--posteriors", "0", "--workers", "0", "--quiet", "--out", str(out)]
     env = dict(ENV, FAKE_FORWARD_LOG=str(log))
     proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
@@ -104,3 +104,17 @@ def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
     proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and log.read_text().splitlines() == before
     assert "Verdict:" in proc.stdout
+    # the posterior outcome of one arm: its run folder filmed and estimated as the case did, then analysed
+    from mpm.forward import Forward
+
+    rec = recs[0]
+    arm = next(a for a in rec.arms if a.arm == "largest")
+    config = res["config"]
+    with Forward(out / "store", workers=0, simulator="fake_forward:simulate") as forward:
+        p = O.posterior_outcome(rec, arm, config, tmp_path / "post", forward=forward)
+    assert p.estimate == arm.estimate and p.setups == [rec.first_setup, "70x70"]
+    from similarity.posterior_summary import read_posterior
+
+    s = read_posterior(tmp_path / "post")
+    assert p.band_width_10 == pytest.approx(s.band_width(10.0)) and p.band_width_10 >= 1.0
+    assert O.posterior_materials(8) == [0, 1, 4, 5] and O.posterior_materials(2, 1) == [0]

@@ -28,6 +28,8 @@ def register(study_subparsers) -> None:
     p.add_argument("--stage-1-generations", type=integer, default=12, metavar="G", help="stage 1's generations (12)")
     p.add_argument("--budget-cpu-s", type=real, default=150.0, metavar="S",
                    help="CPU seconds of each arm's stage 2, the criterion's simulations included (default 150)")
+    p.add_argument("--posteriors", type=integer, default=4, metavar="P",
+                   help="materials (half runny, half pastes) whose arms get the posterior outcome, seed 0 (default 4)")
     add_run_options(p, default_out="./virheo-design-outcome", generations=False)
     p.set_defaults(func=run)
 
@@ -42,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
         result = run_study(run.out, materials=args.materials, seeds=args.seeds, seed=args.seed, preset=args.preset,
                            footage_model=footage, criterion_preset=args.criterion_preset,
                            stage_1_generations=args.stage_1_generations, budget_cpu_s=args.budget_cpu_s,
+                           posteriors=args.posteriors,
                            simulator=simulator(), forward=run.forward, progress=run.progress)
         simulated = run.forward.simulations_run
     print((run.out / "design_outcome.md").read_text())
