@@ -82,8 +82,10 @@ PRESETS = {p.name: p for p in (
 
 
 def filming(preset, model: ForwardModel, name: str) -> Preset:
-    """``preset`` with ``model`` as its one and final model (no finishing stage): what films emulated footage."""
-    return replace(get_preset(preset), name=name, cell_mm=model.cell_mm, ppc=model.ppc, finish_generations=0)
+    """``preset`` with ``model`` as its one and final model (no finishing stage; its walls and density correction
+    too): what films emulated footage, or simulates a run's own model."""
+    return replace(get_preset(preset), name=name, cell_mm=model.cell_mm, ppc=model.ppc, finish_generations=0,
+                   slip_length_m=model.slip_length_m, density_correction=bool(model.density_correction))
 
 
 def get_preset(preset) -> Preset:

@@ -109,6 +109,21 @@ def test_design_from_the_posterior(reported, capsys):
     assert f"{out['next']['width_mm']:g}x{out['next']['height_mm']:g}" == s["next_setups_eig"][0]["setup"]
 
 
+def test_design_information_from_the_posterior_simulates_with_the_runs_model(reported, monkeypatch, capsys):
+    """--posterior RUN: the information criterion simulates with the run's own forward model (here the demo's, so the
+    shipped figures apply), at the posterior mean, with the run's setups done."""
+    run, _ = reported
+    monkeypatch.setenv("VIRHEO_SIMULATOR", ENV["VIRHEO_SIMULATOR"])
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parent))
+    assert main(["design", "--posterior", str(run), "--json", "--workers", "0"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    s = json.loads((run / "posterior.json").read_text())
+    assert out["criterion"] == "information" and out["model"].startswith("the run's model (5 mm cells")
+    assert [f"{d['width_mm']:g}x{d['height_mm']:g}" for d in out["done"]] == s["setups"]
+    assert out["material"] == pytest.approx(s["posterior"]["mean"])
+    assert out["validation"] is not None and out["top"][0]["cost_cpu_min"] > 0
+
+
 def test_corrupt_backend_is_one_line_exit_2(reported, tmp_path, capsys):
     run, _ = reported
     copy = tmp_path / "run"

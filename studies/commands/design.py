@@ -41,7 +41,8 @@ def register(subparsers) -> None:
                    "(section 6); eig: expected information gain in nats (linear-Gaussian approximation with the "
                    "Theta map); docs/uncertainty.md compares them")
     p.add_argument("--preset", default=None, choices=PRESET_NAMES,
-                   help="information: the preset whose final model simulates (default demo: 5 mm cells)")
+                   help="information: the preset whose final model simulates (default demo: 5 mm cells; with "
+                   "--posterior RUN, the run's own model)")
     p.add_argument("--workers", type=integer, default=None, metavar="K",
                    help="information: local worker processes (default: one per CPU core; 0: in this process)")
     p.add_argument("--store", default=None, metavar="PATH",
@@ -62,16 +63,19 @@ def register(subparsers) -> None:
 def run(args) -> int:
     from similarity.design import SIMULATION_PRESET, rank_setups
     from similarity.information import SIMULATIONS_PER_SETUP, grid_setups
-    from similarity.presets import get_preset
+    from similarity.presets import PRESETS, filming, get_preset
     from mpm.params import Material, Setup
     from studies.design_validation import reliability_line, validation
     from surrogate.theta import load
 
-    covariance = None
+    covariance, run_model = None, None
     if args.posterior is not None:
         from similarity.posterior import read_posterior
+        from similarity.run_folder import model_of, read_result
 
         post = read_posterior(args.posterior)
+        result, _ = read_result(args.posterior)
+        run_model = (model_of(result), result.get("preset"))
         material = post.posterior.mean.check_in_space()
         done = [Setup.parse(text).check_in_space() for text in (args.done or post.setups)]
         covariance = post.posterior.cov_normalised
@@ -100,6 +104,14 @@ def run(args) -> int:
     if args.max_cost_min is not None and args.criterion != "information":
         raise ValueError("--max-cost-min needs --criterion information: its simulations measure what each setup costs")
     simulations, preset = 0, args.preset or SIMULATION_PRESET
+    model_name = f"the {preset} preset's model"
+    generations = get_preset(preset).generations
+    if run_model is not None and args.preset is None and args.criterion == "information":
+        # the run's own forward model, so that the information is the one its estimate and posterior see
+        model, run_preset = run_model
+        preset = filming(SIMULATION_PRESET, model, "run")
+        model_name = f"the run's model ({model.cell_mm:g} mm cells, {model.ppc} particles per axis)"
+        generations = get_preset(run_preset).generations if run_preset in PRESETS else generations
     volume_note = None if args.max_volume_ml is None else f"more than {args.max_volume_ml:g} ml (--max-volume-ml)"
     if args.criterion == "information":
         grid = [g for g in grid_setups() if args.max_volume_ml is None or g.volume_ml() <= args.max_volume_ml]
@@ -111,7 +123,6 @@ def run(args) -> int:
         if volume_note:
             ranking = ranking.subset([s.volume_ml() <= args.max_volume_ml for s in ranking.setups()],
                                      f"setups holding {volume_note}")
-    generations = get_preset(preset).generations
     if args.max_cost_min is not None:
         ranking = ranking.subset([c is not None and c <= args.max_cost_min for c in ranking.costs(generations)],
                                  f"setups whose estimation stage costs more than {args.max_cost_min:g} CPU min "
@@ -120,7 +131,9 @@ def run(args) -> int:
     top = ranking.top(TOP, generations)
     gain, gain_note = expected_gain(ranking, best, material, done, theta, covariance)
     # the study validated the packaged maps and the demo model only: others are "not validated"
-    validated = (validation(args.criterion, theta_name) if (args.criterion == "information" and preset == "demo")
+    simulating = get_preset(preset).final if args.criterion == "information" else None
+    validated = (validation(args.criterion, theta_name) if (simulating is not None
+                                                             and simulating.resolved() == get_preset("demo").final.resolved())
                  or (args.criterion != "information" and theta_name in ("reference", "fitted")) else None)
     if plot_path is not None:
         plot_path = plot(ranking, best, plot_path)
@@ -130,7 +143,8 @@ def run(args) -> int:
             "done": [s.to_dict() for s in done],
             "theta": None if args.criterion == "information" else theta.name,
             "criterion": args.criterion,
-            "preset": preset if args.criterion == "information" else None,
+            "preset": (preset if isinstance(preset, str) else None) if args.criterion == "information" else None,
+            "model": model_name if args.criterion == "information" else None,
             "simulations": simulations,
             "next": best.to_dict(),
             "score": score,
@@ -148,7 +162,7 @@ def run(args) -> int:
                  "information": "predicted log det gain"}[args.criterion]
         print(f"next setup: {best} mm (width x height), {label} = {score:.6f} ({SCORE_UNIT[args.criterion]})")
         how = (f"{SIMULATIONS_PER_SETUP * (len(done) + len(grid))} simulations ({simulations} run now) with "
-               f"the {preset} preset's model" if args.criterion == "information" else f"Theta map: {theta.name}")
+               f"{model_name}" if args.criterion == "information" else f"Theta map: {theta.name}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
               f"done: {', '.join(str(s) for s in done)}; {len(ranking)} valid candidates; {how}")
         for note in ranking.notes:
@@ -157,7 +171,7 @@ def run(args) -> int:
                  else "linear-Gaussian model")
         print("  expected gain: " + (f"{gain:.3f} nats (expected information gain, {model})"
                                      if gain is not None else f"not available ({gain_note})"))
-        print(top_table(top, args.criterion, preset, generations))
+        print(top_table(top, args.criterion, model_name, generations))
         print("  " + reliability_line(validated))
         if plot_path:
             print(f"  heat map written to {plot_path}")
@@ -170,11 +184,11 @@ SCORE_UNIT = {"perpendicularity": "S_p, unitless, lower is better",
               "information": "a unitless score: the loss Hessians are not scaled by the footage's noise"}
 
 
-def top_table(top, criterion: str, preset: str, generations: int) -> str:
+def top_table(top, criterion: str, model_name: str, generations: int) -> str:
     """The best candidates (:meth:`similarity.design.Ranking.top`) as indented lines."""
     lines = [f"  best {len(top)}: setup, score, material needed, "
-             + (f"CPU minutes of an estimation stage ({generations} generations x 7 simulations of every setup at the "
-                f"{preset} preset's model, from measured times), flow at the estimate"
+             + (f"CPU minutes of an estimation stage ({generations} generations x 7 simulations of every setup at "
+                f"{model_name}, from measured times), flow at the estimate"
                 if criterion == "information" else "(cost and flow need --criterion information)")]
     for t in top:
         extra = "" if t.cost_cpu_min is None else f", {t.cost_cpu_min:.1f} CPU min"
