@@ -127,26 +127,32 @@ def test_bad_input_exits_2(tmp_path, capsys):
     assert "not a landscape study" in err
 
 
-def test_conditioning_holds_one_chunk_of_footage_at_a_time(tmp_path, monkeypatch):
-    # the paper's 51 x 51 setup grid is 2601 footages of ~4 MB: the study emulates them a chunk at a time,
-    # and the condition numbers do not depend on the chunking
-    from similarity import estimate as E
+def test_conditioning_holds_one_footage_at_a_time_and_resumes_per_setup(tmp_path, monkeypatch):
+    # the paper's 51 x 51 setup grid is 2601 footages of ~4 MB: the study emulates one setup per case, keeps each
+    # finished setup, and its condition numbers are those of the stored stencil losses
+    from similarity import emulation
+    from similarity.fd_hessian import hessian_from_stencil, spectrum
     from mpm.params import Material
     from studies import conditioning as C
 
-    sizes, emulate = [], E.emulate
+    sizes, emulate = [], emulation.emulate
 
     def counting(material, setups, **kw):
         sizes.append(len(setups))
         return emulate(material, setups, **kw)
 
-    monkeypatch.setattr(E, "emulate", counting)
+    monkeypatch.setattr(emulation, "emulate", counting)
     m, store = Material(3.14, 0.74, 6.0), Store(tmp_path / "store")
-    whole = C.conditioning(tmp_path / "whole", m, steps=4, forward=Forward(store, simulator=SIM))
-    assert sizes == [16]
-    monkeypatch.setattr(C, "CHUNK", 5)
+    res = C.conditioning(tmp_path / "c", m, steps=4, forward=Forward(store, simulator=SIM))
+    assert sizes == [1] * 16 and res["simulations"] == 16 * 19 and np.all(np.isfinite(res["condition"]))
+    for case, cond in zip(res["cases"], np.ravel(res["condition"])):
+        assert cond == spectrum(hessian_from_stencil(np.array(case["stencil_losses"]), 0.05)).condition
+    assert res["setups"][1] == "37x20"  # rows = height, columns = width
     sizes.clear()
-    chunked = C.conditioning(tmp_path / "chunked", m, steps=4, forward=Forward(store, simulator=SIM))
-    assert sizes == [5, 5, 5, 1]
-    np.testing.assert_array_equal(chunked["condition"], whole["condition"])
-    assert np.all(np.isfinite(whole["condition"])) and whole["simulations"] == 16 * 19
+    for k in (3, 7):  # a run killed before these setups finished: only they run again
+        (tmp_path / "c" / "cases" / res["setups"][k] / "case.json").unlink()
+    again = C.conditioning(tmp_path / "c", m, steps=4, forward=Forward(store, simulator=SIM))
+    assert sizes == [1, 1] and again["condition"] == res["condition"]
+    assert json.loads((tmp_path / "c" / "conditioning.json").read_text())["condition"] == res["condition"]
+    assert (tmp_path / "c" / "conditioning.png").stat().st_size > 5000
+
