@@ -215,12 +215,13 @@ class LandscapeStudy(Study):
     record = LandscapeRecord
     case_files = ("cases/pair_*/case.json",)
 
-    def __init__(self, out, config: StudyConfig | None = None, *, plots: int = 0):
+    def __init__(self, out, config: StudyConfig | None = None, *, plots: int = 0, pairs: list | None = None):
         super().__init__(out, None if config is None else config.to_dict())
         self.study, self.plot_count = config, plots
+        self.pairs = pairs if pairs is not None or config is None else sample_pairs(config)
 
     def cases(self):
-        return [LandscapeCase(i, p, self.out / "cases" / f"pair_{i:03d}") for i, p in enumerate(sample_pairs(self.study))]
+        return [LandscapeCase(i, p, self.out / "cases" / f"pair_{i:03d}") for i, p in enumerate(self.pairs)]
 
     def announce(self, case) -> str:
         return f"pair {case.index + 1}: {case.pair.material} in {case.pair.setup} mm"
@@ -279,11 +280,11 @@ class LandscapeStudy(Study):
                 "simulations": summary.simulations, "summary": summary.to_dict(), "wall_seconds": wall_seconds}
 
 
-def _prepare(out: Path, config: StudyConfig) -> None:
+def _prepare(out: Path, config: StudyConfig, pairs: list) -> None:
     """study.json: the configuration and the pairs (a folder made with another configuration is refused)."""
     out.mkdir(parents=True, exist_ok=True)
     meta = {"format": FORMAT, "config": config.to_dict(),
-            "pairs": [{"material": p.material.to_dict(), "setup": p.setup.to_dict()} for p in sample_pairs(config)]}
+            "pairs": [{"material": p.material.to_dict(), "setup": p.setup.to_dict()} for p in pairs]}
     path = out / STUDY_FILE
     if path.exists():
         old = json.loads(path.read_text())
@@ -297,8 +298,9 @@ def run(out, config: StudyConfig, *, forward, progress=None, plots: int = 3) -> 
     """Run (or resume, pair by pair) a landscape study in folder ``out``; returns the content of
     ``landscapes.json``."""
     config.check()
-    _prepare(Path(out), config)
-    return LandscapeStudy(out, config, plots=plots).run(forward=forward, progress=progress)
+    pairs = sample_pairs(config)  # drawn once: study.json and the cases hold the same
+    _prepare(Path(out), config, pairs)
+    return LandscapeStudy(out, config, plots=plots, pairs=pairs).run(forward=forward, progress=progress)
 
 
 def load(folder) -> dict:
