@@ -61,7 +61,7 @@ DEFAULT_INFORMATION_SCALE = 1.0e4  # c without a posterior: a setup pins its nor
 class SetupFacts:
     """What the ``information`` criterion's own simulations at the estimate say about one setup."""
 
-    cpu_seconds: float  # per simulation at the criterion's model (median over the setup's simulations)
+    cpu_seconds: float  # per simulation at the criterion's model: its footage's at the estimate, as measured
     runout_mm: float  # advance of the flow front from the first to the last frame of the footage at the estimate
     leaves_view: bool  # that footage's material reaches the image's side edge by the last frame (not in the first)
 
@@ -337,21 +337,17 @@ def _touches_side(frame) -> bool:
 
 
 class _FactCollector:
-    """A ``Forward`` ``on_result`` callback that keeps, per setup, the CPU seconds of its simulations and the footage
-    simulated at ``center``; passes every call on to ``tick``."""
+    """A ``Forward`` ``on_result`` callback that keeps, per setup, the footage simulated at ``center`` (its flow and its
+    CPU seconds); passes every call on to ``tick``."""
 
     def __init__(self, center: Material, tick=None):
         self.center, self.tick = np.asarray(center.as_array(), float), tick
-        self.cpu: dict[str, list] = {}
         self.footage: dict[str, object] = {}
 
     def __call__(self, request, result, cached):
-        if result is not None:
-            key = str(Setup(request.width_mm, request.height_mm))
-            cpu = result.stats.get("cpu_s") if result.stats else None
-            self.cpu.setdefault(key, []).append(float(cpu if cpu is not None else result.wall_seconds))
-            if np.allclose([request.eta, request.n, request.sigma_y], self.center, rtol=1e-12, atol=0):
-                self.footage[key] = result
+        if result is not None and np.allclose([request.eta, request.n, request.sigma_y], self.center, rtol=1e-12,
+                                              atol=0):
+            self.footage[str(Setup(request.width_mm, request.height_mm))] = result
         if self.tick:
             self.tick(request, result, cached)
 
@@ -361,8 +357,8 @@ class _FactCollector:
             front, sil = res.front_m, res.silhouettes
             runout = float((front[-1] - front[0]) * 1e3) if front is not None and len(front) else float("nan")
             leaves = sil is not None and len(sil) > 0 and _touches_side(sil[-1]) and not _touches_side(sil[0])
-            cpu = [c for c in self.cpu.get(key, []) if np.isfinite(c)]
-            out[key] = SetupFacts(float(np.median(cpu)) if cpu else float("nan"), runout, bool(leaves))
+            cpu = res.stats.get("cpu_s") if res.stats else None  # as measured when it ran, also when stored
+            out[key] = SetupFacts(float(cpu if cpu is not None else res.wall_seconds), runout, bool(leaves))
         return out
 
 
