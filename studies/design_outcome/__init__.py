@@ -33,23 +33,20 @@ from pathlib import Path
 
 import numpy as np
 
-from mpm.files import JsonRecord
 from mpm.model import ForwardModel
 from mpm.params import DEFAULT_DENSITY_KG_M3 as DENSITY
 from mpm.params import SETUP_RANGE_MM, Material, Setup
 from similarity.space import e_rel, flow_curve_error
+from studies.design_outcome.records import ArmRun, OutcomeRecord, PosteriorOutcome
+from studies.design_outcome.verdict import ARMS, DEFAULT_ARM, compare, per_material, verdict  # noqa: F401
 from studies.study import Study
 
-ARMS = ("information", "perpendicularity", "eig", "largest", "random", "repeat")
-DEFAULT_ARM = "information"  # the shipped default criterion of `virheo design`
 RANDOM_DRAWS = 2
 LARGEST = Setup(70.0, 70.0)
 # the pre-registered draw: (eta range Pa s^n, log-uniform), n range, (sigma_y range Pa)
 RUNNY = ((0.5, 10.0), (0.35, 0.95), (0.5, 5.0))
 PASTE = ((5.0, 28.0), (0.35, 0.95), (15.0, 38.0))
-BOOTSTRAP = 10_000
-LEVEL = 0.90
-ALPHA = 0.05
+
 
 
 def draw(count: int, seed: int) -> list[tuple[Material, Setup]]:
@@ -87,154 +84,6 @@ def stage_2_generations(budget_cpu_s: float, criterion_cpu_s: float, t_first: fl
     per_generation = POPSIZE * (t_first + t_second)
     left = budget_cpu_s - criterion_cpu_s
     return max(1, int(math.floor(left / per_generation))) if per_generation > 0 else 1
-
-
-@dataclass
-class ArmRun(JsonRecord):
-    """One arm's two-setup estimate in one case."""
-
-    arm: str  # "random_0", "random_1" for the random draws
-    second_setup: str
-    fallback: str | None  # why the criterion could not propose (the first random draw was taken), or None
-    criterion_cpu_s: float
-    t_first_s: float  # CPU seconds of one simulation of setup 1 at the estimation model, at stage 1's estimate
-    t_second_s: float
-    generations: int  # of stage 2
-    stage_1_shared: bool  # its stage 1 is the case's stage 1 (served by the store)
-    estimate: Material
-    flow_error: float
-    e_rel: float
-    simulations: int
-    wall_seconds: float
-
-    READERS = {"estimate": lambda d: Material(**d)}
-
-
-@dataclass
-class OutcomeRecord(JsonRecord):
-    """One finished case: a material and a CMA-ES seed, stage 1 and every arm."""
-
-    config: dict
-    material_index: int
-    seed_index: int
-    truth: Material
-    first_setup: str
-    stage_1: Material
-    stage_1_flow_error: float
-    stage_1_e_rel: float
-    arms: list  # ArmRun
-    wall_seconds: float
-
-    READERS = {"truth": lambda d: Material(**d), "stage_1": lambda d: Material(**d),
-               "arms": lambda d: [ArmRun.from_dict(a) for a in d]}
-
-
-@dataclass
-class Comparison(JsonRecord):
-    """An arm against a reference arm over the materials (paired: arm minus reference, flow-curve error)."""
-
-    reference: str
-    materials: int
-    median_difference: float | None
-    interval: list | None  # bootstrap LEVEL interval of the median difference
-    wilcoxon_p: float | None  # one-sided: the arm's error is lower
-
-
-@dataclass
-class ArmSummary(JsonRecord):
-    median_flow_error: float
-    median_e_rel: float
-    per_material: list  # flow-curve error per material, averaged over seeds and draws
-    against: dict  # reference -> Comparison
-
-    READERS = {"against": lambda d: {k: Comparison.from_dict(v) for k, v in d.items()}}
-
-
-@dataclass
-class OutcomeSummary(JsonRecord):
-    materials: int
-    cases: int
-    arms: dict  # arm -> ArmSummary
-    best: str | None  # the arm of the lowest median flow-curve error
-    default_passes: bool | None
-    recommended: str | None  # the arm the study supports (None: none beat random)
-    verdict: str
-
-    READERS = {"arms": lambda d: {k: ArmSummary.from_dict(v) for k, v in d.items()}}
-
-
-def per_material(records: list[OutcomeRecord], field: str = "flow_error") -> dict:
-    """arm -> {material index -> mean of ``field`` over its seeds (and the random draws)}."""
-    acc: dict = {}
-    for r in records:
-        for a in r.arms:
-            arm = a.arm.split("_")[0]
-            acc.setdefault(arm, {}).setdefault(r.material_index, []).append(getattr(a, field))
-    return {arm: {m: float(np.mean(v)) for m, v in sorted(ms.items())} for arm, ms in acc.items()}
-
-
-def compare(arm: dict, reference: dict, name: str, seed: int = 62) -> Comparison:
-    """Paired comparison of two arms' per-material errors (:class:`Comparison`)."""
-    from scipy.stats import wilcoxon
-
-    common = sorted(set(arm) & set(reference))
-    d = np.array([arm[m] - reference[m] for m in common])
-    if not len(d):
-        return Comparison(name, 0, None, None, None)
-    rng = np.random.default_rng(seed)
-    boots = np.median(d[rng.integers(0, len(d), size=(BOOTSTRAP, len(d)))], axis=1)
-    tail = (1 - LEVEL) / 2
-    p = float(wilcoxon(d, alternative="less").pvalue) if np.any(d != 0) else 1.0
-    return Comparison(name, len(d), float(np.median(d)), [float(np.quantile(boots, tail)),
-                                                          float(np.quantile(boots, 1 - tail))], p)
-
-
-def verdict(records: list[OutcomeRecord]) -> OutcomeSummary:
-    """The pre-registered test and pass rule (module docstring; docs/uncertainty.md)."""
-    flow, erel = per_material(records), per_material(records, "e_rel")
-    arms = {}
-    for arm in ARMS:
-        if arm not in flow:
-            continue
-        against = {ref: compare(flow[arm], flow[ref], ref) for ref in ("random", "perpendicularity")
-                   if ref in flow and ref != arm}
-        arms[arm] = ArmSummary(float(np.median(list(flow[arm].values()))), float(np.median(list(erel[arm].values()))),
-                               [flow[arm][m] for m in sorted(flow[arm])], against)
-    best = min(arms, key=lambda a: arms[a].median_flow_error) if arms else None
-
-    def beats_random(a: str) -> bool:
-        c = arms[a].against.get("random")
-        return c is not None and c.wilcoxon_p is not None and c.wilcoxon_p < ALPHA
-
-    passes = None
-    if DEFAULT_ARM in arms and best is not None:
-        vs_best = (compare(flow[DEFAULT_ARM], flow[best], best) if best != DEFAULT_ARM else None)
-        no_worse = vs_best is None or (vs_best.interval is not None and vs_best.interval[0] <= 0.0)
-        passes = beats_random(DEFAULT_ARM) and no_worse
-    if passes:
-        recommended, text = DEFAULT_ARM, f"the default, {DEFAULT_ARM}, passes: it beats random and is no worse than the best arm"
-    elif best is not None and best != "random" and beats_random(best):
-        recommended, text = best, f"{best} wins: it beats random and has the lowest median flow-curve error"
-    else:
-        recommended = None
-        text = ("no arm beats random on the flow-curve error (p < 0.05)" + (f"; the lowest median error: {best}"
-                                                                          if best else ""))
-    return OutcomeSummary(len({r.material_index for r in records}), len(records), arms, best, passes, recommended, text)
-
-
-@dataclass
-class PosteriorOutcome(JsonRecord):
-    """The posterior of one arm's two-setup run (`virheo report`'s analysis, default options)."""
-
-    material_index: int
-    arm: str
-    setups: list
-    estimate: Material
-    band_width_10: float  # 95th over 5th percentile stress of the 90 % flow band at 10 1/s
-    truth_inside_10: bool  # the true stress at 10 1/s lies within that band
-    wall_seconds: float
-
-    READERS = {"estimate": lambda d: Material(**d)}
 
 
 POSTERIORS = 4  # materials with a posterior outcome (pre-registered)
