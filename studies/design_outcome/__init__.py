@@ -202,6 +202,7 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
     from similarity.design import SIMULATION_PRESET, rank_by_simulation
     from similarity.emulation import emulate
     from similarity.estimate import estimate, get_preset
+    from similarity.information import SIMULATIONS_PER_SETUP
     from similarity.presets import filming
     from similarity.proposers import Eig, Perpendicularity
 
@@ -235,7 +236,7 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
                 ranking = rank_by_simulation(m1, [case.first], preset=config["criterion_preset"] or SIMULATION_PRESET,
                                              forward=forward)
                 setup = ranking.best()[0]
-                cost = 19.0 * sum(f.cpu_seconds for f in ranking.facts.values())
+                cost = SIMULATIONS_PER_SETUP * sum(f.cpu_seconds for f in ranking.facts.values())
             elif arm == "perpendicularity":
                 setup = Perpendicularity("reference")(m1, [case.first])
             elif arm == "eig":
