@@ -98,6 +98,15 @@ class Candidate(JsonRecord):
     flags: list | None  # SetupFacts.flags (None: not simulated)
 
 
+@dataclass(frozen=True)
+class InformationCheck(JsonRecord):
+    """How well the simulated Hessians explain a posterior: the information of the setups done in nats, by their FD
+    Hessians with the run's noise scale and by the posterior itself (both against the uniform prior)."""
+
+    hessian_nats: float  # 1/2 log det(I + Sigma_prior F_done), F_done = tau H_done (similarity.information)
+    posterior_nats: float  # 1/2 log det(Sigma_prior Sigma^-1)
+
+
 @dataclass(frozen=True, eq=False)
 class Ranking:
     """Every valid candidate with its loss normal and score S_p, in candidate order."""
@@ -114,6 +123,12 @@ class Ranking:
     covariance: np.ndarray | None = None  # "eig": the current posterior covariance Sigma
     notes: tuple = ()  # one line per setup done that was left out (no normal at this material), or a fallback taken
     facts: dict | None = None  # "information": str(setup) -> SetupFacts of the setups done and the candidates
+    check: InformationCheck | None = None  # "information" with a posterior: its score is in nats
+
+    @property
+    def nats(self) -> bool:
+        """Whether the score is an expected information gain in nats (else a unitless score, or S_p)."""
+        return self.criterion == "eig" or self.check is not None
 
     def __len__(self) -> int:
         return len(self.score)
@@ -305,23 +320,58 @@ def rank_setups(material, done, theta="reference", variant: str = "scaled", crit
     return Ranking(material, done, width[valid], height[valid], perpendicularity(q_done, q), q, q_done, notes=notes)
 
 
+def information_check(h_done_mean, noise, covariance) -> InformationCheck:
+    """:class:`InformationCheck` from the Hessian of the run's mean loss over its setups, its noise model and the
+    posterior covariance (normalised space)."""
+    from similarity.information import fisher_information
+
+    prior = np.eye(3) / PRIOR_PRECISION
+    fd = float(expected_information_gain(prior, fisher_information(h_done_mean, noise)))
+    post = 0.5 * float(np.linalg.slogdet(prior)[1] - np.linalg.slogdet(np.asarray(covariance, float))[1])
+    return InformationCheck(fd, post)
+
+
 def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_step: float | None = None, tick=None,
-                       setups=None) -> Ranking:
-    """Score ``setups`` (default: :func:`similarity.information.grid_setups`) by the log det gain of their simulated
-    FD loss Hessians at ``material`` after the setups ``done`` (module docstring), simulated by ``forward`` with the
-    preset's final model; higher is better.  A setup whose simulations failed is left out.  The ranking's ``facts``
-    hold each setup's measured CPU seconds per simulation and the flow of its footage at the estimate."""
-    from similarity.information import STEP, grid_setups, interior, predicted_gains
+                       setups=None, covariance=None, noise=None) -> Ranking:
+    """Score ``setups`` (default: :func:`similarity.information.grid_setups`) by their simulated FD loss Hessians at
+    ``material`` after the setups ``done`` (module docstring), simulated by ``forward`` with the preset's final model;
+    higher is better.  Without a posterior the score is the unitless log det gain.  With a posterior's ``covariance``
+    (normalised space) and its ``noise`` (:class:`similarity.likelihood.NoiseScale`) it is the expected information
+    gain in nats, 1/2 log det(I + Sigma F_c), each candidate's Fisher information F_c = tau_c H_c weighted by its own
+    noise (:func:`similarity.information.candidate_noise`: one more simulation per setup, at half the cell width);
+    ``Ranking.check`` then says how well the Hessians of the setups done explain the posterior.  A setup whose
+    simulations failed is left out.  The ranking's ``facts`` hold each setup's measured CPU seconds per simulation
+    and the flow of its footage at the estimate."""
+    from similarity.information import (STEP, candidate_noise, fisher_information, grid_setups, interior,
+                                        predicted_hessians, realised_gains)
     from similarity.presets import get_preset
 
+    if (covariance is None) != (noise is None):
+        raise ValueError("the information in nats needs both the posterior's covariance and its noise model")
     material, done = _material(material), _setups(done)
     setups = grid_setups() if setups is None else list(setups)
     if not setups:
         raise ValueError("no candidate setup to score")
     step = STEP if fd_step is None else fd_step
+    preset = get_preset(preset)
     seen = _FactCollector(interior(material, step), tick)
-    gains = predicted_gains(material, done, setups, preset=get_preset(preset), forward=forward, fd_step=step,
-                            tick=seen)
+    h_done, hessians, eps = predicted_hessians(material, done, setups, preset=preset, forward=forward, fd_step=step,
+                                               tick=seen)
+    check = None
+    if covariance is None:
+        gains = realised_gains(h_done, hessians, eps=eps)
+    else:
+        covariance = np.asarray(covariance, float)
+        if covariance.shape != (3, 3) or not np.all(np.isfinite(covariance)):
+            raise ValueError("covariance must be a finite 3 x 3 matrix (normalised material space)")
+        try:
+            noises = candidate_noise(material, setups, noise, preset=preset, forward=forward, fd_step=step, tick=tick)
+        except RuntimeError as exc:
+            raise ValueError(f"cannot weigh the setups by their noise: {first_line(exc)}") from None
+        gains = np.array([np.nan if h is None or z is None else
+                          float(expected_information_gain(covariance, fisher_information(h, z)))
+                          for h, z in zip(hessians, noises)])
+        check = information_check(h_done / len(done), noise, covariance)
     ok = np.isfinite(gains)
     if not ok.any():
         raise ValueError(f"every simulation of the candidate setups around {material} failed")
@@ -329,7 +379,7 @@ def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_
     h = np.array([s.height_mm for s in setups])[ok]
     none = np.empty((int(ok.sum()), 3))
     return Ranking(material, done, w, h, gains[ok], none, np.empty((len(done), 3)), "information",
-                   facts=seen.facts())
+                   facts=seen.facts(), check=check)
 
 
 def _touches_side(frame) -> bool:

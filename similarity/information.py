@@ -179,14 +179,14 @@ def interior(material, fd_step: float = STEP):
     return Material.from_array(denormalize(np.clip(normalize(material.as_array()), fd_step, 1.0 - fd_step)))
 
 
-def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float = STEP, tick=None) -> np.ndarray:
-    """The log det gain (:func:`log_det_gain`) of each of ``setups`` after the setups ``done``, from the FD
-    Hessians at ``estimate`` on footage emulated there (module docstring): 19 simulations per setup, done ones
-    included.  NaN for a setup whose simulations failed; ValueError when a done setup's did.  When nothing moves
-    measurably around the estimate in the setups done (their Hessians have no positive eigenvalue: a stiff material
-    in a small box), the ridge comes from the candidates instead (RIDGE x their largest eigenvalue), so that each
-    candidate is scored by what it pins down on its own, with a warning; ValueError when no setup carries
-    information."""
+def predicted_hessians(estimate, done, setups, *, preset, forward, fd_step: float = STEP, tick=None
+                       ) -> tuple[np.ndarray, list, float | None]:
+    """(H_done, the Hessian of each of ``setups`` or None where its simulations failed, the ridge eps or None for
+    :func:`ridge`): the FD Hessians at ``estimate`` on footage emulated there (module docstring), 19 simulations per
+    setup, done ones included.  ValueError when a done setup's simulations failed.  When nothing moves measurably
+    around the estimate in the setups done (their Hessians have no positive eigenvalue: a stiff material in a small
+    box), the ridge comes from the candidates instead (RIDGE x their largest eigenvalue), so that each candidate is
+    scored by what it pins down on its own, with a warning; ValueError when no setup carries information."""
     done, setups = list(done), list(setups)
     estimate = interior(estimate, fd_step)
     try:
@@ -207,4 +207,44 @@ def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float =
         eps = RIDGE * max(tops)
         warnings.warn(f"the setups done carry no information at {estimate} (their loss does not change around it): "
                       "each candidate is scored by what it pins down on its own")
+    return h_done, candidates, eps
+
+
+def predicted_gains(estimate, done, setups, *, preset, forward, fd_step: float = STEP, tick=None) -> np.ndarray:
+    """The log det gain (:func:`log_det_gain`) of each of ``setups`` after the setups ``done``, from
+    :func:`predicted_hessians`; NaN for a setup whose simulations failed."""
+    h_done, candidates, eps = predicted_hessians(estimate, done, setups, preset=preset, forward=forward,
+                                                 fd_step=fd_step, tick=tick)
     return realised_gains(h_done, candidates, eps=eps)
+
+
+def fisher_information(hessian, noise) -> np.ndarray:
+    """F = tau H: the Hessian of -log p (eq. 1 of :mod:`similarity.likelihood`, log p = -tau L) for the Hessian H of a
+    setup's mean video loss and that setup's noise model ``noise`` (a :class:`similarity.likelihood.NoiseScale`)."""
+    return noise.precision * np.asarray(hessian, float)
+
+
+def candidate_noise(estimate, setups, noise, *, preset, forward, fd_step: float = STEP, tick=None) -> list:
+    """The predicted noise model (:meth:`similarity.likelihood.NoiseScale.for_new_setup`) of each of ``setups`` at
+    ``estimate``, from ``noise`` (the run's) with the setup's own frames and discretisation error (its footage at the
+    estimate with the preset's final model against half its cell width: one more simulation per setup); None where
+    a simulation failed."""
+    from similarity.emulation import emulate
+
+    center = interior(estimate, fd_step)
+    shells = emulate(center, list(setups), preset=preset, forward=forward, on_result=tick)  # the stencil's footage
+    deltas = discretisation_losses(center, shells, preset.final, forward)
+    return [None if d is None else noise.for_new_setup(len(e.frames), d) for e, d in zip(shells, deltas)]
+
+
+def discretisation_losses(material, experiments, model, forward) -> list:
+    """delta_disc of :mod:`similarity.likelihood` per experiment: the video loss (eq. 3) between ``material``
+    simulated with ``model`` and with half its cell width (None where either simulation failed)."""
+    from dataclasses import replace
+
+    from mpm.loss import video_loss
+
+    model = model.resolved()
+    fine = replace(model, cell_mm=model.cell_mm / 2.0)
+    coarse, refined = (forward.silhouettes(material, experiments, m) for m in (model, fine))
+    return [video_loss(a, b) if a is not None and b is not None else None for a, b in zip(coarse, refined)]

@@ -109,6 +109,15 @@ class NoiseScale(JsonRecord):
     def with_emulator(self, rmse: float) -> "NoiseScale":
         return NoiseScale(self.n_pixels, self.n_eff, self.loss_at_optimum, self.discretisation, float(rmse), self.frames)
 
+    def for_new_setup(self, frames: int, discretisation: float) -> "NoiseScale":
+        """The predicted noise model of a setup not filmed yet, with ``frames`` frames and its own ``discretisation``
+        (delta_disc, simulated at the estimate): the same misfit per frame L(M^) (the model error, assumed the same in
+        every setup), the same emulator error and the same independent residuals per frame as this one."""
+        per_frame = self.n_eff / self.frames if self.frames else 1.0
+        pixels = self.n_pixels // self.frames * int(frames) if self.frames else 0
+        return NoiseScale(pixels, per_frame * int(frames), self.loss_at_optimum, float(discretisation), self.emulator,
+                          int(frames))
+
     def to_dict(self) -> dict:
         return asdict(self) | {"variance": self.variance, "precision": self.precision}
 

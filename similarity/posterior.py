@@ -23,7 +23,7 @@
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -69,13 +69,11 @@ def archive(run: Run, center, half_width: float) -> np.ndarray:
 
 def discretisation_error(run: Run) -> float:
     """delta_disc: loss between the estimate simulated at the run's final discretisation (the one of its
-    reported loss) and at half its cell width."""
-    from mpm.loss import video_loss
+    reported loss) and at half its cell width, averaged over the run's setups."""
+    from similarity.information import discretisation_losses
 
-    model = run.preset.final.resolved()
-    fine = replace(model, cell_mm=model.cell_mm / 2.0)
-    coarse, refined = (run.forward.silhouettes(run.estimate, run.experiments, m) for m in (model, fine))
-    vals = [video_loss(a, b) for a, b in zip(coarse, refined) if a is not None and b is not None]
+    vals = [v for v in discretisation_losses(run.estimate, run.experiments, run.preset.final, run.forward)
+            if v is not None]
     return float(np.mean(vals)) if vals else 0.0
 
 
@@ -359,11 +357,12 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         next_perp = {"error": first_line(exc)}
     say(f"next setup by simulated information ({SIMULATION_PRESET} preset's model)")
     try:
-        info = rank_by_simulation(m_mean, run.setups, preset=SIMULATION_PRESET, forward=run.forward)
+        info = rank_by_simulation(m_mean, run.setups, preset=SIMULATION_PRESET, forward=run.forward,
+                                  covariance=post.cov, noise=noise)
         best, gain = info.best()
         top = info.top(3, get_preset(SIMULATION_PRESET).generations)
-        next_info = {"setup": str(best), "log_det_gain": gain, "preset": SIMULATION_PRESET,
-                     "top": [t.to_dict() for t in top]}
+        next_info = {"setup": str(best), "eig_nats": gain, "preset": SIMULATION_PRESET,
+                     "top": [t.to_dict() for t in top], "check": info.check.to_dict()}
     except ValueError as exc:
         next_info = {"error": str(exc).splitlines()[0]}
     summary = PosteriorSummary(

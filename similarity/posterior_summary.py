@@ -101,8 +101,9 @@ class PosteriorSummary(JsonRecord):
     eig_grid: list | None = None  # EIG [nats] over the setup grid (rows: heights)
     next_setups_eig: list  # the ten best next setups: {"setup", "eig_nats"}
     next_setup_perpendicular: dict  # {"setup", "score", "eig_nats"}, or {"error"}
-    # simulated information (similarity.design.rank_by_simulation): {"setup", "log_det_gain", "eig_nats", "preset"},
-    # or {"error"}; None in files written before it
+    # simulated information (similarity.design.rank_by_simulation with the posterior's covariance and noise):
+    # {"setup", "eig_nats", "preset", "top", "check"} ({"setup", "log_det_gain", ...} in files written before the
+    # noise weighting), or {"error"}; None in files written before it
     next_setup_information: dict | None = None
     rheometer_band_coverage: float | None = None  # set by the HTML report when given a rheometer curve
     evidence: EvidenceSummary | None = None  # the laws' evidences and verdicts; None in files written before them
@@ -132,3 +133,11 @@ def read_posterior(folder) -> PosteriorSummary:
     if cov.shape != (3, 3):
         raise ValueError(f"{path}: covariance is not 3 x 3")
     return s
+
+
+def information_gain(next_setup_information: dict) -> tuple[float, str]:
+    """(gain, its unit in words) of a ``next_setup_information`` entry: expected information gain in nats, or the
+    unitless log det gain of files written before the noise weighting."""
+    if "eig_nats" in next_setup_information:
+        return float(next_setup_information["eig_nats"]), "nats"
+    return float(next_setup_information["log_det_gain"]), "log det gain, a unitless score"

@@ -235,11 +235,18 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
     info = summary.next_setup_information or {}
     if info.get("setup"):
         info_line = "<br>".join(map(e, reliability_line(validation("information", "reference")).splitlines()))
+        from similarity.posterior_summary import information_gain
+
+        gain, unit = information_gain(info)
         reliability += (f"<p>Setup of largest simulated information (the loss Hessians of 16 setups simulated at "
-                        f"the posterior mean, {e(info['preset'])} preset's model): <b>{e(info['setup'])}</b> mm, "
-                        f"log det gain {info['log_det_gain']:.4f} (a unitless score). {info_line}.</p>")
+                        f"the posterior mean, {e(info['preset'])} preset's model"
+                        f"{', each weighted by its own noise' if unit == 'nats' else ''}): "
+                        f"<b>{e(info['setup'])}</b> mm, {gain:.4f} {e(unit)}. {info_line}.</p>")
+        if info.get("check"):
+            reliability += (f"<p>Calibration: the setups done carry {info['check']['hessian_nats']:.2f} nats by their "
+                            f"simulated Hessians, {info['check']['posterior_nats']:.2f} nats in the posterior.</p>")
         if info.get("top"):
-            reliability += ("<table><tr><th>setup</th><th>log det gain</th><th>material</th><th>CPU min per "
+            reliability += (f"<table><tr><th>setup</th><th>gain ({e(unit.split(',')[0])})</th><th>material</th><th>CPU min per "
                             "estimation stage</th><th>runout at the estimate</th><th>flags</th></tr>" + "".join(
                                 f"<tr><td>{e(t['setup'])} mm</td><td>{t['score']:.3f}</td><td>{t['volume_ml']:.0f} ml"
                                 f"</td><td>{t['cost_cpu_min']:.1f}</td><td>{t['runout_mm']:.0f} mm</td>"

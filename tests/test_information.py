@@ -116,3 +116,83 @@ def test_an_estimate_on_a_face_of_the_space_is_moved_inward_by_the_step(fake_for
     setups = [Setup(70.0, 70.0), Setup(40.0, 20.0)]
     np.testing.assert_array_equal(I.predicted_gains(face, [Setup(29.0, 59.0)], setups, **kw),
                                   I.predicted_gains(inside, [Setup(29.0, 59.0)], setups, **kw))
+
+
+def _noise(frames=8, misfit=2e-3, disc=1e-3, emul=5e-4):
+    from similarity.likelihood import NoiseScale
+
+    return NoiseScale(frames * 1000, float(frames), misfit, disc, emul, frames)
+
+
+def test_a_new_setups_noise_keeps_the_runs_misfit_and_residuals_per_frame_and_takes_its_own_discretisation():
+    run = _noise(frames=16)
+    new = run.for_new_setup(8, 4e-3)
+    assert new.frames == 8 and new.n_eff == pytest.approx(8.0) and new.n_pixels == 8000
+    assert new.variance == pytest.approx(2e-3 + 4e-3 + 5e-4)
+    assert new.precision == pytest.approx(8.0 / (2 * (2e-3 + 4e-3 + 5e-4)))  # tau = N_eff / (2 s^2), eq. (1)
+    h = np.diag([3.0, 2.0, 1.0])
+    np.testing.assert_allclose(I.fisher_information(h, new), new.precision * h)
+
+
+def test_the_information_check_agrees_where_the_posterior_is_the_laplace_posterior_of_the_hessians():
+    """Sigma^-1 = 12 I + tau H_done: the setups done carry the same nats by their Hessians and in the posterior."""
+    from similarity.design import information_check
+
+    v = _rotation(3)
+    h = v @ np.diag([900.0, 40.0, 2.0]) @ v.T
+    noise = _noise()
+    cov = np.linalg.inv(12.0 * np.eye(3) + noise.precision * h)
+    c = information_check(h, noise, cov)
+    assert c.hessian_nats == pytest.approx(c.posterior_nats, rel=1e-9)
+    assert c.posterior_nats == pytest.approx(0.5 * np.sum(np.log(1 + noise.precision * np.array([900, 40, 2]) / 12)))
+    # a posterior twice as precise in every direction carries 3/2 log 2 nats more than the Hessians say
+    assert information_check(h, noise, cov / 2).posterior_nats - c.hessian_nats == pytest.approx(1.5 * np.log(2))
+
+
+def test_with_a_posterior_the_criterion_scores_in_nats_each_setup_weighted_by_its_own_noise(monkeypatch):
+    """The information criterion with a posterior's covariance and noise: each candidate's score is
+    1/2 log det(I + Sigma tau_c H_c) with tau_c from its own discretisation; a noisier setup scores lower than the same
+    Hessian with less noise would."""
+    from mpm.params import Material, Setup
+    from similarity import design
+    from similarity.fd_hessian import stencil as stencil_offsets
+
+    rng = np.random.default_rng(5)
+    mats = {}
+
+    def stencil(truth, setups, **kw):  # a quadratic loss per setup: its Hessian is known exactly
+        out = []
+        for s in setups:
+            a = rng.normal(size=(3, 3)) if str(s) not in mats else None
+            if a is not None:
+                mats[str(s)] = a @ a.T * s.width_mm * s.height_mm / 400.0
+            o = stencil_offsets(I.STEP)
+            out.append(0.5 * np.einsum("ij,jk,ik->i", o, mats[str(s)], o))
+        return np.array(out)
+
+    deltas = {}
+
+    def noises(estimate, setups, noise, **kw):
+        return [noise.for_new_setup(8, deltas.setdefault(str(s), 1e-4 * s.width_mm)) for s in setups]
+
+    monkeypatch.setattr(I, "stencil_losses", stencil)
+    monkeypatch.setattr(I, "candidate_noise", noises)
+    monkeypatch.setattr(design, "_FactCollector", lambda center, tick=None: type(
+        "F", (), {"__call__": lambda self, *a: None, "facts": lambda self: {}})())
+    material, done = Material(3.0, 0.6, 5.0), [Setup(29.0, 59.0)]
+    noise = _noise()
+    cov = np.linalg.inv(12.0 * np.eye(3) + 50.0 * np.eye(3))
+    r = design.rank_by_simulation(material, done, forward=None, covariance=cov, noise=noise)
+    assert r.nats and r.check is not None and len(r) == 16
+    for w, h, score in zip(r.width_mm, r.height_mm, r.score):
+        s = Setup(w, h)
+        tau = noise.for_new_setup(8, deltas[str(s)]).precision
+        hs = I.setup_hessian(stencil(material, [s])[0])
+        assert score == pytest.approx(0.5 * np.linalg.slogdet(np.eye(3) + cov @ (tau * hs))[1], rel=1e-9)
+    deltas.update({k: 10 * v for k, v in deltas.items()})  # every setup noisier: every score lower
+    noisier = design.rank_by_simulation(material, done, forward=None, covariance=cov, noise=noise)
+    assert np.all(noisier.score < r.score)
+    unweighted = design.rank_by_simulation(material, done, forward=None)
+    assert not unweighted.nats and unweighted.check is None
+    with pytest.raises(ValueError, match="both the posterior's covariance and its noise"):
+        design.rank_by_simulation(material, done, forward=None, covariance=cov)

@@ -74,12 +74,14 @@ def test_posterior_summary_is_coherent(reported):
     lengths = s["ellipsoid_posterior"]["lengths"]
     assert lengths == sorted(lengths) and lengths[0] > 0
     assert s["next_setups_eig"] and s["next_setups_eig"][0]["eig_nats"] >= s["next_setups_eig"][-1]["eig_nats"]
-    # the simulated criterion: a setup of its grid, its log det gain a unitless score (no nats), its best three
+    # the simulated criterion: a setup of its grid, in nats (each setup weighted by its noise, the posterior's
+    # covariance), with the check of the setups done, its best three
     from similarity.information import grid_setups
     info = s["next_setup_information"]
     assert info["setup"] in {str(g) for g in grid_setups()} and info["preset"] == "demo"
-    assert "eig_nats" not in info and info["log_det_gain"] > 0
-    assert [t["setup"] for t in info["top"]][0] == info["setup"] and info["top"][0]["score"] == info["log_det_gain"]
+    assert "log_det_gain" not in info and info["eig_nats"] > 0
+    assert info["check"]["posterior_nats"] > 0 and info["check"]["hessian_nats"] > 0
+    assert [t["setup"] for t in info["top"]][0] == info["setup"] and info["top"][0]["score"] == info["eig_nats"]
     assert all(t["volume_ml"] > 0 and t["cost_cpu_min"] > 0 for t in info["top"])
 
 
@@ -94,8 +96,9 @@ def test_report_prints_the_simulated_next_setup(reported):
     assert re.search(r"emulator checked on 8 simulated posterior draws \(\d fits\): [+-]\d+\.\d\d nats optimistic, "
                      r"(trusted|NOT trusted)", proc.stdout)
     info = json.loads((run / "posterior.json").read_text())["next_setup_information"]
-    assert (f"next setup by simulated information: {info['setup']} mm (log det gain {info['log_det_gain']:.3f}, a "
-            "unitless score") in proc.stdout
+    assert (f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats; demo preset's "
+            "model, each setup weighted by its own noise)") in proc.stdout
+    assert f"{info['check']['posterior_nats']:.2f} nats in the posterior" in proc.stdout
     assert f"{info['top'][0]['volume_ml']:.0f} ml" in proc.stdout
     assert "Setup of largest simulated information" in (run / "report" / "index.html").read_text()
 
@@ -122,6 +125,11 @@ def test_design_information_from_the_posterior_simulates_with_the_runs_model(rep
     assert [f"{d['width_mm']:g}x{d['height_mm']:g}" for d in out["done"]] == s["setups"]
     assert out["material"] == pytest.approx(s["posterior"]["mean"])
     assert out["validation"] is not None and out["top"][0]["cost_cpu_min"] > 0
+    # with the posterior's covariance and noise the score is in nats, and the report shows the same ranking
+    assert out["score_unit"].startswith("nats") and out["expected_gain_nats"] == out["score"] > 0
+    assert out["information_check"] == s["next_setup_information"]["check"]
+    assert [t["setup"] for t in out["top"]] == [t["setup"] for t in s["next_setup_information"]["top"]]
+    assert out["score"] == pytest.approx(s["next_setup_information"]["eig_nats"], rel=1e-9)
 
 
 def test_corrupt_backend_is_one_line_exit_2(reported, tmp_path, capsys):

@@ -68,7 +68,7 @@ def run(args) -> int:
     from studies.design_validation import reliability_line, validation
     from surrogate.theta import load
 
-    covariance, run_model = None, None
+    covariance, run_model, noise = None, None, None
     if args.posterior is not None:
         from similarity.posterior import read_posterior
         from similarity.run_folder import model_of, read_result
@@ -78,7 +78,7 @@ def run(args) -> int:
         run_model = (model_of(result), result.get("preset"))
         material = post.posterior.mean.check_in_space()
         done = [Setup.parse(text).check_in_space() for text in (args.done or post.setups)]
-        covariance = post.posterior.cov_normalised
+        covariance, noise = post.posterior.cov_normalised, post.noise
     elif args.material is None or not args.done:
         raise ValueError("give --material and --done, or --posterior RUN")
     else:
@@ -117,7 +117,7 @@ def run(args) -> int:
         grid = [g for g in grid_setups() if args.max_volume_ml is None or g.volume_ml() <= args.max_volume_ml]
         if not grid:
             raise ValueError(f"no candidate setup holds {volume_note.replace('more than', 'at most')}")
-        ranking, simulations = simulated_ranking(material, done, args, preset, grid)
+        ranking, simulations = simulated_ranking(material, done, args, preset, grid, covariance, noise)
     else:
         ranking = rank_setups(material, done, theta=theta, criterion=args.criterion, covariance=covariance)
         if volume_note:
@@ -148,7 +148,8 @@ def run(args) -> int:
             "simulations": simulations,
             "next": best.to_dict(),
             "score": score,
-            "score_unit": SCORE_UNIT[args.criterion],
+            "score_unit": score_unit(ranking),
+            "information_check": None if ranking.check is None else ranking.check.to_dict(),
             "expected_gain_nats": gain,
             "top": [t.to_dict() for t in top],
             "validation": validated,
@@ -159,8 +160,9 @@ def run(args) -> int:
         }, indent=1))
     else:
         label = {"perpendicularity": "S_p", "eig": "expected information gain [nats]",
-                 "information": "predicted log det gain"}[args.criterion]
-        print(f"next setup: {best} mm (width x height), {label} = {score:.6f} ({SCORE_UNIT[args.criterion]})")
+                 "information": "expected information gain [nats]" if ranking.nats else "predicted log det gain"
+                 }[args.criterion]
+        print(f"next setup: {best} mm (width x height), {label} = {score:.6f} ({score_unit(ranking)})")
         how = (f"{SIMULATIONS_PER_SETUP * (len(done) + len(grid))} simulations ({simulations} run now) with "
                f"{model_name}" if args.criterion == "information" else f"Theta map: {theta.name}")
         print(f"  material eta={material.eta:g} Pa s^n, n={material.n:g}, sigma_y={material.sigma_y:g} Pa; "
@@ -171,6 +173,10 @@ def run(args) -> int:
                  else "linear-Gaussian model")
         print("  expected gain: " + (f"{gain:.3f} nats (expected information gain, {model})"
                                      if gain is not None else f"not available ({gain_note})"))
+        if ranking.check is not None:
+            c = ranking.check
+            print(f"  calibration: the setups done carry {c.hessian_nats:.2f} nats by their simulated Hessians and the "
+                  f"run's noise, {c.posterior_nats:.2f} nats in the posterior (against the uniform prior)")
         print(top_table(top, args.criterion, model_name, generations))
         print("  " + reliability_line(validated))
         if plot_path:
@@ -182,6 +188,13 @@ TOP = 3  # candidates printed with their volume, cost and flags
 SCORE_UNIT = {"perpendicularity": "S_p, unitless, lower is better",
               "eig": "nats under the linear-Gaussian model",
               "information": "a unitless score: the loss Hessians are not scaled by the footage's noise"}
+NATS_UNIT = ("nats under the linear-Gaussian model: the simulated Hessians weighted by each setup's noise, the run's "
+             "posterior covariance")
+
+
+def score_unit(ranking) -> str:
+    """What the ranking's score is, in words."""
+    return NATS_UNIT if ranking.criterion == "information" and ranking.nats else SCORE_UNIT[ranking.criterion]
 
 
 def top_table(top, criterion: str, model_name: str, generations: int) -> str:
@@ -198,9 +211,9 @@ def top_table(top, criterion: str, model_name: str, generations: int) -> str:
     return "\n".join(lines)
 
 
-def simulated_ranking(material, done, args, preset, setups=None):
+def simulated_ranking(material, done, args, preset, setups=None, covariance=None, noise=None):
     """(the ``information`` ranking, simulations run): the simulator's information at ``material`` with the final
-    model of ``preset``."""
+    model of ``preset``; in nats with a posterior's ``covariance`` and ``noise``."""
     import warnings
 
     from mpm.forward import Forward
@@ -221,18 +234,18 @@ def simulated_ranking(material, done, args, preset, setups=None):
     with warnings.catch_warnings():
         report_data_losses()
         with Forward(store, workers=args.workers, simulator=simulator()) as forward:
-            return (rank_by_simulation(material, done, preset=preset, forward=forward, tick=tick, setups=setups),
-                    count[0])
+            return (rank_by_simulation(material, done, preset=preset, forward=forward, tick=tick, setups=setups,
+                                       covariance=covariance, noise=noise), count[0])
 
 
 def expected_gain(ranking, best, material, done, theta, covariance) -> tuple[float | None, str | None]:
     """(expected information gain in nats of the chosen setup, why not): the ranking's own score for ``eig``, none
     for ``information`` (its score is not calibrated in nats), else the EIG ranking's value at the chosen setup."""
     from similarity.design import rank_setups
-    if ranking.criterion == "information":
-        return None, ("the simulated Hessians are not scaled by the footage's noise, so their log det gain is a "
-                      "unitless score, not nats")
-    if ranking.criterion == "eig":
+    if ranking.criterion == "information" and not ranking.nats:
+        return None, ("without a posterior (--posterior RUN) the simulated Hessians are not scaled by the footage's "
+                      "noise, so their log det gain is a unitless score, not nats")
+    if ranking.nats:
         return float(ranking.best()[1]), None
     try:
         eig = rank_setups(material, done, theta=theta, criterion="eig", covariance=covariance)

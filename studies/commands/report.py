@@ -80,8 +80,15 @@ def run(args: argparse.Namespace) -> int:
         print("  " + reliability_line(validation("eig", "reference")))
     info = summary.next_setup_information or {}
     if info.get("setup"):
-        print(f"next setup by simulated information: {info['setup']} mm (log det gain {info['log_det_gain']:.3f}, a "
-              f"unitless score; {info['preset']} preset's model)")
+        from similarity.posterior_summary import information_gain
+
+        gain, unit = information_gain(info)
+        weighted = ", each setup weighted by its own noise" if unit == "nats" else ""
+        print(f"next setup by simulated information: {info['setup']} mm ({gain:.3f} {unit}; {info['preset']} preset's "
+              f"model{weighted})")
+        if info.get("check"):
+            print(f"  calibration: the setups done carry {info['check']['hessian_nats']:.2f} nats by their simulated "
+                  f"Hessians, {info['check']['posterior_nats']:.2f} nats in the posterior")
         for t in info.get("top", []):
             flags = "; ".join(t["flags"] or [])
             print(f"  {t['setup']:>6} mm: gain {t['score']:.3f}, {t['volume_ml']:.0f} ml, {t['cost_cpu_min']:.1f} CPU min "
