@@ -1,6 +1,8 @@
 """How reliable the second-setup criteria proved: the held-out figures of `virheo study design-information`
 (:mod:`studies.design_information`), shipped as ``studies/data/design_validation.json`` (the documented run's
-``design_validation.json``), and the line `virheo design` and the report print from them.
+``design_validation.json``); the estimation outcome of `virheo study design-outcome` (:mod:`studies.design_outcome`),
+shipped as ``studies/data/design_outcome.json`` (the documented run's ``design_outcome.json``) once it has run; and
+the line `virheo design` and the report print from them.
 """
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from mpm.files import JsonRecord, read_json
 from mpm.params import SETUP_RANGE_MM, Setup
 
 SUMMARY_FILE = Path(__file__).resolve().parent / "data" / "design_validation.json"
+OUTCOME_FILE = Path(__file__).resolve().parent / "data" / "design_outcome.json"
 # `virheo design`'s default criterion, as the study names it: the one that beat the candidate mean on the held-out
 # materials (docs/uncertainty.md, "Does the design pay off?")
 DEFAULT_CRITERION = "information"
@@ -58,10 +61,11 @@ def shipped_summary(summ, config: dict) -> DesignValidation:
                                       for k, v in held.items()})
 
 
-def validation(criterion: str, theta: str, path=SUMMARY_FILE) -> dict | None:
+def validation(criterion: str, theta: str, path=SUMMARY_FILE, outcome_path=OUTCOME_FILE) -> dict | None:
     """The shipped held-out figures of ``criterion`` ("information", "perpendicularity" or "eig") with Theta map
-    ``theta`` ("reference", "fitted"; "information" uses none), as validated; None when that combination was not
-    validated (a custom map)."""
+    ``theta`` ("reference", "fitted"; "information" uses none), as validated, with its estimation outcome
+    (:func:`outcome`, None where the outcome study has not run or has no such arm); None when that combination was
+    not validated (a custom map)."""
     name = "information" if criterion == "information" else "eig" if criterion == "eig" and theta == "reference" else (
         f"perpendicularity-{theta}" if criterion == "perpendicularity" else None)
     if name is None or not Path(path).is_file():
@@ -72,7 +76,61 @@ def validation(criterion: str, theta: str, path=SUMMARY_FILE) -> dict | None:
     big = data.criteria.get("largest")
     return {"name": name, **data.criteria[name].to_dict(), "recommended": data.recommended,
             "within_fraction": data.within, "median_gain_seeded": data.median_gain_seeded,
-            "largest": None if big is None else big.to_dict()}
+            "largest": None if big is None else big.to_dict(), "outcome": outcome(name, outcome_path)}
+
+
+# a criterion as design_validation names it -> its arm in the outcome study (the published Theta map only)
+OUTCOME_ARMS = {"information": "information", "eig": "eig", "perpendicularity-reference": "perpendicularity"}
+
+
+@dataclass
+class OutcomeValidation(JsonRecord):
+    """One arm of the outcome study, as `virheo design` quotes it."""
+
+    arm: str
+    materials: int
+    median_flow_error: float
+    random_median_flow_error: float | None
+    median_difference_vs_random: float | None  # the arm minus random, per material
+    interval_vs_random: list | None  # bootstrap 90 % interval of that median difference
+    wilcoxon_p_vs_random: float | None
+    verdict: str  # the study's verdict in words
+    recommended: str | None  # the arm the study supports (None: none beat random)
+
+
+def outcome(name: str, path=OUTCOME_FILE) -> dict | None:
+    """The shipped outcome study's figures for the criterion ``name`` (:data:`OUTCOME_ARMS`), or None."""
+    arm = OUTCOME_ARMS.get(name)
+    if arm is None or not Path(path).is_file():
+        return None
+    summary = read_json(path)["summary"]
+    arms = summary.get("arms", {})
+    if arm not in arms:
+        return None
+    mine, rnd = arms[arm], arms.get("random")
+    vs = mine.get("against", {}).get("random") or {}
+    return OutcomeValidation(arm, int(summary["materials"]), float(mine["median_flow_error"]),
+                             None if rnd is None else float(rnd["median_flow_error"]), vs.get("median_difference"),
+                             vs.get("interval"), vs.get("wilcoxon_p"), summary["verdict"],
+                             summary.get("recommended")).to_dict()
+
+
+def outcome_line(o: dict) -> str:
+    """The outcome study's figures of one arm, in words."""
+    line = (f"reliability by estimation outcome (virheo study design-outcome, {o['materials']} materials, footage of a "
+            f"finer model): median flow-curve error {o['median_flow_error']:.3f} (log10 stress RMS, 1-100 1/s)")
+    if o["random_median_flow_error"] is not None and o["arm"] != "random":
+        line += f" against a random setup's {o['random_median_flow_error']:.3f}"
+        if o["wilcoxon_p_vs_random"] is not None:
+            lo, hi = o["interval_vs_random"]
+            line += (f" (median paired difference {o['median_difference_vs_random']:+.3f}, 90 % interval "
+                     f"[{lo:+.3f}, {hi:+.3f}], Wilcoxon p = {o['wilcoxon_p_vs_random']:.2g})")
+    line += f"; the study's verdict: {o['verdict']}"
+    if o["recommended"] is None:
+        line += "\n  weak: no criterion beat a random second setup on the estimate it gave"
+    elif o["recommended"] != o["arm"]:
+        line += f"\n  weak: the study supports {o['recommended']} instead"
+    return line
 
 
 def reliability_line(v: dict | None) -> str:
@@ -81,6 +139,8 @@ def reliability_line(v: dict | None) -> str:
         return ("reliability: not validated (virheo study design-information checked the information criterion with "
                 "the demo preset's model, EIG with the published Theta map and perpendicularity with the published and "
                 "the fitted one)")
+    if v.get("outcome"):
+        return outcome_line(v["outcome"])
     line = ("reliability: not validated by estimation outcome (whether filming the proposal improves the estimate "
             "has not been measured); in the simulator's own information (virheo study design-information) "
             f"within {100 * v['within_fraction']:.0f} % of the best candidate in {v['within']} of "

@@ -75,6 +75,37 @@ def test_the_paired_test_and_the_pass_rule():
     assert s.default_passes is False and s.recommended is None and "no arm beats random" in s.verdict
 
 
+def test_virheo_design_quotes_the_shipped_outcome_for_its_criterion(tmp_path):
+    """The reliability line of `virheo design` quotes the outcome study's figures of its criterion's arm; where the
+    study found no arm better than random it says so; without the study's file it falls back to the held-out line."""
+    from studies import design_validation as V
+
+    def record(m, errors):
+        arms = [O.ArmRun(a, "30x30", None, 0.0, 1.0, 1.0, 1, True, Material(1, 1, 1), e, e, 1, 0.0)
+                for a, e in errors.items()]
+        return O.OutcomeRecord({}, m, 0, Material(1, 1, 1), "20x20", Material(1, 1, 1), 0.0, 0.0, arms, 0.0)
+
+    path = tmp_path / "design_outcome.json"
+    good = O.verdict([record(m, {"information": 0.1, "perpendicularity": 0.3, "random_0": 0.3 + 0.01 * m,
+                                 "random_1": 0.3 + 0.01 * m}) for m in range(8)])
+    path.write_text(json.dumps({"config": {}, "summary": good.to_dict()}))
+    o = V.outcome("information", path)
+    vs = good.arms["information"].against["random"]
+    assert o["median_flow_error"] == pytest.approx(0.1) and o["wilcoxon_p_vs_random"] == vs.wilcoxon_p
+    v = V.validation("information", "reference", outcome_path=path)
+    line = V.reliability_line(v)
+    assert line.startswith("reliability by estimation outcome (virheo study design-outcome, 8 materials")
+    assert f"Wilcoxon p = {vs.wilcoxon_p:.2g}" in line and good.verdict in line and "weak" not in line
+    assert V.outcome("perpendicularity-fitted", path) is None  # the study used the published map only
+    tie = O.verdict([record(m, {"information": 0.3, "perpendicularity": 0.3, "random_0": 0.3, "random_1": 0.3})
+                     for m in range(8)])
+    path.write_text(json.dumps({"config": {}, "summary": tie.to_dict()}))
+    assert "weak: no criterion beat a random second setup" in V.reliability_line(
+        V.validation("information", "reference", outcome_path=path))
+    missing = V.validation("information", "reference", outcome_path=tmp_path / "none.json")
+    assert missing["outcome"] is None and "not validated by estimation outcome" in V.reliability_line(missing)
+
+
 def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
     out, log = tmp_path / "do", tmp_path / "sims.log"
     argv = [sys.executable, "-m", "studies.cli", "study", "design-outcome", "--materials", "2", "--seeds", "1",
