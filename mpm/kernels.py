@@ -324,11 +324,16 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
                 win[DONE] += 1
 
     @ti.func
+    def share(t, n):
+        """Particles [p0, p1) of task t's share of n."""
+        return t * n // tasks, (t + 1) * n // tasks
+
+    @ti.func
     def slice_of(t, n):
         """Particles [p0, p1) of slice t: one particle with atomics, else the task's share."""
         p0, p1 = t, t + 1
         if ti.static(not atomic):
-            p0, p1 = t * n // tasks, (t + 1) * n // tasks
+            p0, p1 = share(t, n)
         return p0, p1
 
     @ti.kernel
@@ -345,13 +350,15 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, prm, yue, slipping, dens)
 
     @ti.kernel
-    def init_bbox(x: nd, win: nd, acc: nd, accf: nd, n: ti.i32, dx: float, lh: float):
-        inv_dx = 1.0 / dx
+    def init_bbox(x: nd, acc: nd, accf: nd, prm: params):
+        """The stencil bounding box of each task's share of the initial positions: the first step's window."""
+        inv_dx = 1.0 / prm.dx
         for t in range(tasks):
             lo = ti.Vector([2147483647] * D)
             hi = ti.Vector([-2147483647] * D)
-            for p in range(t * n // tasks, (t + 1) * n // tasks):
-                base = stencil_base(x[p], inv_dx, lh)
+            p0, p1 = share(t, prm.n)
+            for p in range(p0, p1):
+                base = stencil_base(x[p], inv_dx, prm.lh)
                 lo = ti.min(lo, base)
                 hi = ti.max(hi, base)
             for a in ti.static(range(D)):

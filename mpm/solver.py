@@ -192,8 +192,7 @@ class _Run:
         win = np.zeros(16, np.int32)
         eng.win.from_numpy(win)
         with _compile_notice(eng):
-            eng.init_bbox(eng.x, eng.win, eng.acc, eng.accf, self.count, scene.cell_m,
-                          scene.half_length_m / scene.cell_m)
+            eng.init_bbox(eng.x, eng.acc, eng.accf, self._params(0.0))
         first = eng.acc.to_numpy()
         span = first[:, 3:3 + d].max(0) + 3 - first[:, :d].min(0)
         eng.ensure_grid(int(np.prod(span)) * 2)
@@ -211,11 +210,16 @@ class _Run:
             launches, per_launch = (1, steps) if eng.serial else (steps, 1)
             self._launch_steps(launches, per_launch, dt)
 
-    def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
+    def _params(self, dt: float):
+        """The step kernel's parameter struct (:func:`mpm.kernels.step_params`) for time step ``dt``."""
         eng, s = self.eng, self.scene
-        prm = eng.params(n=self.count, capg=eng.cap_g, dt=dt, dx=s.cell_m, mp=s.particle_mass, vol=s.particle_volume,
-                         kappa=s.kappa, mu=s.mu, eta=self.eta, n_power=self.n, sy=self.sigma_y, body=self.body,
-                         zmid=s.plane_z_m, lh=s.half_length_m / s.cell_m, slip=self.slip_m)
+        return eng.params(n=self.count, capg=eng.cap_g, dt=dt, dx=s.cell_m, mp=s.particle_mass, vol=s.particle_volume,
+                          kappa=s.kappa, mu=s.mu, eta=self.eta, n_power=self.n, sy=self.sigma_y, body=self.body,
+                          zmid=s.plane_z_m, lh=s.half_length_m / s.cell_m, slip=self.slip_m)
+
+    def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
+        eng = self.eng
+        prm = self._params(dt)
         for _ in range(launches):
             eng.step(eng.x, eng.v, eng.C, eng.be, eng.iso, eng.loge, eng.flags, eng.grid, eng.win, eng.acc,
                      eng.accf, eng.boxes, eng.lim, prm, per_launch, self.yue, self.slip_m > 0, self.density_correction)
