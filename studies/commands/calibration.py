@@ -1,20 +1,21 @@
-"""``virheo study calibration``: coverage of the posterior's 90 % credible region on emulated footage."""
+"""``virheo study calibration``: does the posterior's 90 % credible region hold the truth? (emulated footage)
+
+Materials by a Sobol design over the material space, one random setup each; footage simulated by the estimating
+model ('same') or at half its cell width ('finer'); a one-setup estimate, then the posterior of `virheo report`;
+records the credible level of the truth. Writes calibration.json, calibration.md and reliability.png. Resumes from
+its store and its finished cases.
+"""
 from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import (add_posterior_options, add_preset_option, add_run_options, check_posterior_options,
-                                      check_run_options, integer, open_run, seed)
+from studies.commands.context import (add_command, add_posterior_options, add_preset_option, add_run_options,
+                                      check_posterior_options, check_run_options, integer, open_run, seed)
 
 
 def register(study_subparsers) -> None:
     """Add ``calibration`` to the ``study`` sub-command's parsers."""
-    p = study_subparsers.add_parser(
-        "calibration", help="does the posterior's 90 %% credible region hold the truth? (emulated footage)",
-        description="Materials by a Sobol design over the material space, one random setup each; footage simulated "
-        "by the estimating model ('same') or at half its cell width ('finer'); a one-setup estimate, then the "
-        "posterior of `virheo report`; records the credible level of the truth. Writes calibration.json, "
-        "calibration.md and reliability.png. Resumes from its store and its finished cases.")
+    p = add_command(study_subparsers, __doc__)
     p.add_argument("--cases", type=integer, default=20, metavar="N", help="materials (one setup each; default 20)")
     p.add_argument("--setting", choices=("same", "finer", "both"), default="both",
                    help="footage by the estimating model, at half its cell width, or both (default both)")

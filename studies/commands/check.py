@@ -1,7 +1,9 @@
-"""``virheo check DIR``: validate an experiment folder and check its setup against frame 1.
+"""``virheo check DIR``: validate an experiment folder (settings, camera, 8 silhouettes) and its setup against frame 1
 
-Exit status 0 when the folder is fine, 1 when it is usable but suspicious (one line per warning on
-stderr), 2 when it is invalid (one-line error, raised as ValueError/FileNotFoundError to the dispatcher).
+Validate an experiment folder: settings.xml, camera_params.xml and config_01..08.png (1920x1080 black-on-white
+silhouettes). Projects the initial cuboid onto frame 1 and reports its IoU (also with W and H swapped); with
+--overlay, draws it. Exit 0: fine; 1: usable but suspicious; 2: invalid (the same setups and footage that `virheo
+estimate` refuses).
 """
 from __future__ import annotations
 
@@ -13,16 +15,11 @@ import numpy as np
 from mpm import experiment
 from mpm.silhouette import BOX_EDGES, box_corners
 
+from studies.commands.context import add_command
+
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "check",
-        help="validate an experiment folder (settings, camera, 8 silhouettes) and its setup against frame 1",
-        description="Validate an experiment folder: settings.xml, camera_params.xml and config_01..08.png "
-        "(1920x1080 black-on-white silhouettes). Projects the initial cuboid onto frame 1 and reports its IoU "
-        "(also with W and H swapped); with --overlay, draws it. Exit 0: fine; 1: usable but suspicious; "
-        "2: invalid (the same setups and footage that `virheo estimate` refuses).",
-    )
+    p = add_command(subparsers, __doc__)
     p.add_argument("dir", metavar="DIR", help="experiment folder")
     p.add_argument("--overlay", metavar="FILE.png", default=None,
                    help="write an image of the projected cuboid (setup in mm from settings.xml) over frame 1")

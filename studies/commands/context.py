@@ -75,6 +75,20 @@ def seed(text: str) -> int:
 PRESET_NAMES = Names("similarity.estimate:PRESETS")
 
 
+def add_command(subparsers, doc: str) -> argparse.ArgumentParser:
+    """The parser of the command a module's docstring ``doc`` describes: its first paragraph is
+    "``virheo [GROUP] NAME ...``: help", the paragraphs below are the description ``--help`` prints."""
+    import re
+
+    first, _, rest = doc.strip().partition("\n\n")
+    match = re.match(r"``virheo (?:study |theta )?([a-z][a-z-]*)[^`]*``:\s*(.*)", " ".join(first.split()), re.S)
+    if match is None:
+        raise ValueError(f"a command's docstring must start with ``virheo NAME``: ...; got {first[:60]!r}")
+    name, help = match.groups()
+    description = "\n\n".join(" ".join(par.split()) for par in rest.split("\n\n") if par.strip()) or help
+    return subparsers.add_parser(name, help=help.replace("%", "%%"), description=description.replace("%", "%%"))
+
+
 def add_command_group(subparsers, name: str, *, help: str, description: str, dest: str, metavar: str):
     """Register command ``name`` whose actions are sub-commands (returned as their subparsers action);
     given without an action it prints its help and exits 2."""

@@ -1,11 +1,16 @@
-"""``virheo demo``: an emulated two-setup ViRheometry run on a default material (demo preset)."""
+"""``virheo demo``: emulated two-setup ViRheometry run on a default material (demo preset)
+
+Simulates footage of a known material (the ground truth), estimates it back with Algorithm 1 (setup 1, then the
+proposed setup 2) and writes a small report. Re-running resumes from the store.
+"""
 from __future__ import annotations
 
 import argparse
 import sys
 
 from mpm.params import DEFAULT_DENSITY_KG_M3
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, real, seed
+from studies.commands.context import (add_command, add_preset_option, add_run_options, check_run_options, open_run,
+                                      real, seed)
 
 # The embedded default specimen (SI) and its first setup (mm); see docs/performance.md (estimate).
 DEFAULT_TRUTH = "3.0,0.5,15.0"
@@ -14,11 +19,7 @@ DEFAULT_SEED = 0  # demo preset seeds 0..3 measured: docs/validation.md
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "demo", help="emulated two-setup ViRheometry run on a default material (demo preset)",
-        description="Simulates footage of a known material (the ground truth), estimates it back with Algorithm 1 "
-        "(setup 1, then the proposed setup 2) and writes a small report. Re-running resumes from the store.",
-    )
+    p = add_command(subparsers, __doc__)
     p.add_argument("--material", default=DEFAULT_TRUTH, metavar="ETA,N,SIGMA_Y",
                    help=f"ground truth: eta [Pa s^n], n [-], sigma_y [Pa] (default {DEFAULT_TRUTH})")
     p.add_argument("--setup", default=DEFAULT_FIRST_SETUP, metavar="WxH",

@@ -1,22 +1,23 @@
-"""``virheo study design-outcome``: each design arm's second setup judged by the estimate it yields."""
+"""``virheo study design-outcome``: does the recommended second setup give a better estimate? arms at equal CPU budget
+
+Materials drawn half runny, half thick pastes, a random first setup each; footage emulated with a finer model; stage
+1 shared; each arm (information, perpendicularity, eig, largest, random x2, repeat) picks a second setup, and stage
+2 on both setups gets the same CPU budget, the criterion's own simulations included. Outcome: the flow-curve error
+over 1-100 1/s (and E_rel); each arm against random and perpendicularity by a paired Wilcoxon test and a bootstrap
+interval. Pre-registered in docs/uncertainty.md. Writes design_outcome.json and .md. Resumes from its store and
+finished cases.
+"""
 from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import (PRESET_NAMES, add_preset_option, add_run_options, check_run_options, integer,
-                                      open_run, real, seed, simulator)
+from studies.commands.context import (PRESET_NAMES, add_command, add_preset_option, add_run_options, check_run_options,
+                                      integer, open_run, real, seed, simulator)
 
 
 def register(study_subparsers) -> None:
     """Add ``design-outcome`` to the ``study`` sub-command's parsers."""
-    p = study_subparsers.add_parser(
-        "design-outcome", help="does the recommended second setup give a better estimate? arms at equal CPU budget",
-        description="Materials drawn half runny, half thick pastes, a random first setup each; footage emulated with "
-        "a finer model; stage 1 shared; each arm (information, perpendicularity, eig, largest, random x2, repeat) "
-        "picks a second setup, and stage 2 on both setups gets the same CPU budget, the criterion's own simulations "
-        "included. Outcome: the flow-curve error over 1-100 1/s (and E_rel); each arm against random and "
-        "perpendicularity by a paired Wilcoxon test and a bootstrap interval. Pre-registered in docs/uncertainty.md. "
-        "Writes design_outcome.json and .md. Resumes from its store and finished cases.")
+    p = add_command(study_subparsers, __doc__)
     p.add_argument("--materials", type=integer, default=8, metavar="N", help="materials, half runny (default 8)")
     p.add_argument("--seeds", type=integer, default=2, metavar="K", help="CMA-ES seeds per material (default 2)")
     p.add_argument("--seed", type=seed, default=62, help="seed of the materials and random setups (default 62)")

@@ -1,22 +1,23 @@
-"""``virheo study design-resolution``: the information criterion's measure at several MPM discretisations."""
+"""``virheo study design-resolution``: the information criterion's log det gains at several models, against the finest
+
+For fixed materials (modelled on Table 1) and setups (setup 1, the corners and the middle of 20-70 mm and three
+more), the log det gain of each candidate after setup 1 from FD loss Hessians on footage emulated at each model; per
+material the argmax, the trace ratio 70x70/20x20 and Spearman against the finest model; names the cheapest model
+that matches the finest. Runs with other --models or --materials add to one --out. Writes design_resolution.json and
+.md. Resumes from its store and finished cases.
+"""
 from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_run_options, check_run_options, integer, open_run, simulator
+from studies.commands.context import add_command, add_run_options, check_run_options, integer, open_run, simulator
 
 
 def register(study_subparsers) -> None:
     """Add ``design-resolution`` to the ``study`` sub-command's parsers."""
     from studies.design_resolution import DEFAULT_MODELS, MATERIALS, model_label
 
-    p = study_subparsers.add_parser(
-        "design-resolution", help="the information criterion's log det gains at several models, against the finest",
-        description="For fixed materials (modelled on Table 1) and setups (setup 1, the corners and the middle of "
-        "20-70 mm and three more), the log det gain of each candidate after setup 1 from FD loss Hessians on footage "
-        "emulated at each model; per material the argmax, the trace ratio 70x70/20x20 and Spearman against the "
-        "finest model; names the cheapest model that matches the finest. Runs with other --models or --materials "
-        "add to one --out. Writes design_resolution.json and .md. Resumes from its store and finished cases.")
+    p = add_command(study_subparsers, __doc__)
     p.add_argument("--models", nargs="+", default=[f"{m.cell_mm:g}:{m.ppc}" for m in DEFAULT_MODELS],
                    metavar="CELL_MM:PPC", help="forward models, sticking walls (default: "
                    + " ".join(model_label(m) for m in DEFAULT_MODELS) + ")")

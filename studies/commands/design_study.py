@@ -1,19 +1,21 @@
-"""``virheo study design``: the second setup by EIG vs perpendicularity vs random at equal simulation budget."""
+"""``virheo study design``: second setup by EIG vs perpendicularity vs random at equal budget (emulated footage)
+
+Materials by a Sobol design over the material space, a random first setup each; two-setup ViRheometry once per
+criterion for the second setup (expected information gain under stage 1's belief, the paper's perpendicularity,
+random), sharing stage 1. Records E_rel after two setups. Writes design.json, design.md and e_rel.png. Resumes from
+its store and its finished cases.
+"""
 from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, seed
+from studies.commands.context import (add_command, add_preset_option, add_run_options, check_run_options, integer,
+                                      open_run, seed)
 
 
 def register(study_subparsers) -> None:
     """Add ``design`` to the ``study`` sub-command's parsers."""
-    p = study_subparsers.add_parser(
-        "design", help="second setup by EIG vs perpendicularity vs random at equal budget (emulated footage)",
-        description="Materials by a Sobol design over the material space, a random first setup each; two-setup "
-        "ViRheometry once per criterion for the second setup (expected information gain under stage 1's belief, "
-        "the paper's perpendicularity, random), sharing stage 1. Records E_rel after two setups. Writes "
-        "design.json, design.md and e_rel.png. Resumes from its store and its finished cases.")
+    p = add_command(study_subparsers, __doc__)
     p.add_argument("--cases", type=integer, default=20, metavar="N",
                    help="materials (one first setup each; default 20)")
     p.add_argument("--seed", type=seed, default=0, help="seed of the design, setups and CMA-ES (default 0)")

@@ -1,20 +1,19 @@
-"""``virheo estimate DIR [DIR ...]``: Herschel-Bulkley parameters from dam-break footage (Algorithm 1)."""
+"""``virheo estimate DIR [DIR ...]``: estimate eta, n, sigma_y from experiment folders (CMA-ES, Algorithm 1)
+
+Fit the Herschel-Bulkley parameters (eta [Pa s^n], n [-], sigma_y [Pa]) to one or more experiment folders (setup 1
+first). Stage k fits the first k folders. Re-running the same command after an interruption resumes it.
+"""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, open_run, seed
+from studies.commands.context import add_command, add_preset_option, add_run_options, check_run_options, open_run, seed
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "estimate", help="estimate eta, n, sigma_y from experiment folders (CMA-ES, Algorithm 1)",
-        description="Fit the Herschel-Bulkley parameters (eta [Pa s^n], n [-], sigma_y [Pa]) to one or more "
-        "experiment folders (setup 1 first). Stage k fits the first k folders. Re-running the same command "
-        "after an interruption resumes it.",
-    )
+    p = add_command(subparsers, __doc__)
     p.add_argument("dirs", nargs="+", metavar="DIR",
                    help="experiment folders (settings.xml, camera_params.xml, config_01..08.png)")
     add_preset_option(p, default="footage")

@@ -1,21 +1,22 @@
-"""``virheo study laws``: are the laws' verdicts right when they are resolved? (emulated footage)"""
+"""``virheo study laws``: calibration of the laws' verdicts: yield stress, shear thinning (emulated footage)
+
+18 materials (4 power law, 4 Bingham, 2 Newtonian, 8 Herschel-Bulkley, some near the faces); footage at 1.26 mm with
+two particles per axis, a one-setup estimate at the preset's model (default survey: 2.5 mm, two particles per axis),
+the second setup `virheo design` proposes, the two-setup estimate and `virheo report`'s evidence. Scores the
+verdicts against the truth. Writes laws.json, laws.md and laws.png. Resumes from its store and its finished cases.
+--quick: 2 materials on coarse models, a test of the machinery.
+"""
 from __future__ import annotations
 
 import argparse
 
-from studies.commands.context import add_preset_option, add_run_options, check_run_options, integer, open_run, seed
+from studies.commands.context import (add_command, add_preset_option, add_run_options, check_run_options, integer,
+                                      open_run, seed)
 
 
 def register(study_subparsers) -> None:
     """Add ``laws`` to the ``study`` sub-command's parsers."""
-    p = study_subparsers.add_parser(
-        "laws", help="calibration of the laws' verdicts: yield stress, shear thinning (emulated footage)",
-        description="18 materials (4 power law, 4 Bingham, 2 Newtonian, 8 Herschel-Bulkley, some near the faces); "
-        "footage at 1.26 mm with two particles per axis, a one-setup estimate at the preset's model (default "
-        "survey: 2.5 mm, two particles per axis), the second setup `virheo design` proposes, the two-setup "
-        "estimate and `virheo report`'s evidence. Scores the verdicts against the truth. Writes laws.json, "
-        "laws.md and laws.png. Resumes from its store and its finished cases. --quick: 2 materials on coarse "
-        "models, a test of the machinery.")
+    p = add_command(study_subparsers, __doc__)
     p.add_argument("--quick", action="store_true", help="2 materials, footage at 2.5 mm, the demo preset")
     p.add_argument("--new-simulations", type=integer, default=12, metavar="N",
                    help="space-filling candidates per emulator box of the posterior (default 12)")

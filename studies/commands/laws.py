@@ -1,21 +1,23 @@
-"""``virheo laws RUN``: which law the footage supports (Herschel-Bulkley, Bingham, power law, Newtonian), from a
-reported run."""
+"""``virheo laws RUN``: does the material have a yield stress, is it shear thinning: the laws' evidence of a reported
+run
+
+For a folder `virheo report` has written: the evidence of Herschel-Bulkley and of its special cases Bingham (n = 1),
+power law (sigma_y = 0) and Newtonian, on the report's likelihood and emulator, their log Bayes factors with Monte
+Carlo errors and the verdicts in words (Jeffreys' scale; resolved from |ln BF| = ln 10). Simulates nothing; `virheo
+report` computes the same and grows its box to every law's face.
+"""
 from __future__ import annotations
 
 import argparse
 import json
 
+from studies.commands.context import add_command
+
 
 def register(subparsers) -> None:
     from studies.commands.context import add_laws_option
 
-    p = subparsers.add_parser(
-        "laws", help="does the material have a yield stress, is it shear thinning: the laws' evidence of a reported run",
-        description="For a folder `virheo report` has written: the evidence of Herschel-Bulkley and of its special "
-        "cases Bingham (n = 1), power law (sigma_y = 0) and Newtonian, on the report's likelihood and emulator, "
-        "their log Bayes factors with Monte Carlo errors and the verdicts in words (Jeffreys' scale; resolved from "
-        "|ln BF| = ln 10). Simulates nothing; `virheo report` computes the same and grows its box to every law's face.",
-    )
+    p = add_command(subparsers, __doc__)
     p.add_argument("run", metavar="RUN", help="run folder holding posterior.json and the posterior's samples")
     add_laws_option(p)
     p.add_argument("--json", action="store_true", help="print the evidence as JSON")

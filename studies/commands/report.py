@@ -1,4 +1,10 @@
-"""``virheo report RUN``: posterior, similarity ellipsoids, next setups and an HTML page for a finished run."""
+"""``virheo report RUN``: uncertainty report of an estimate: posterior, flow-curve band, ellipsoids, next setups (HTML)
+
+For a folder written by `virheo estimate` or `virheo demo`: estimates the noise of the footage, trains an emulator
+of the loss near the estimate (the store's simulations plus a space-filling batch of new ones), samples the
+posterior over (eta [Pa s^n], n, sigma_y [Pa]) with emcee and writes RUN/posterior.json and an HTML page with
+figures (RUN/report/index.html). Re-running resumes (store and emcee backend).
+"""
 from __future__ import annotations
 
 import argparse
@@ -6,17 +12,12 @@ from pathlib import Path
 
 import numpy as np
 
-from studies.commands.context import add_laws_option, add_posterior_options, check_engine, check_posterior_options, seed
+from studies.commands.context import (add_command, add_laws_option, add_posterior_options, check_engine,
+                                      check_posterior_options, seed)
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "report", help="uncertainty report of an estimate: posterior, flow-curve band, ellipsoids, next setups (HTML)",
-        description="For a folder written by `virheo estimate` or `virheo demo`: estimates the noise of the footage, "
-        "trains an emulator of the loss near the estimate (the store's simulations plus a space-filling batch of new "
-        "ones), samples the posterior over (eta [Pa s^n], n, sigma_y [Pa]) with emcee and writes RUN/posterior.json "
-        "and an HTML page with figures (RUN/report/index.html). Re-running resumes (store and emcee backend).",
-    )
+    p = add_command(subparsers, __doc__)
     p.add_argument("run", metavar="RUN", help="run folder holding result.json (and its store)")
     p.add_argument("--rheometer", default=None, metavar="CSV", help="rheometer flow-curve export to draw over the band")
     p.add_argument("--out", default=None, metavar="DIR", help="report folder (default RUN/report)")

@@ -1,22 +1,22 @@
-"""``virheo rheometer FILE.csv``: print a rotational-rheometer flow curve and its Herschel-Bulkley fit."""
+"""``virheo rheometer FILE.csv``: read a rheometer flow curve (instrument CSV export) and fit Herschel-Bulkley
+parameters
+
+Read a steady-shear flow curve exported by the rotational rheometer (UTF-16, tab separated, Japanese header rows),
+print it in SI (shear rate 1/s, stress Pa, viscosity Pa s) and fit the Herschel-Bulkley curve sigma = sigma_y + eta
+* rate^n by least squares in log10 stress over the reliable range (default 1..100 1/s). Optionally score a given
+material (e.g. a video estimate) on the same range.
+"""
 from __future__ import annotations
 
 import json
 
 import numpy as np
 
-from studies.commands.context import real
+from studies.commands.context import add_command, real
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "rheometer",
-        help="read a rheometer flow curve (instrument CSV export) and fit Herschel-Bulkley parameters",
-        description="Read a steady-shear flow curve exported by the rotational rheometer (UTF-16, tab separated, "
-        "Japanese header rows), print it in SI (shear rate 1/s, stress Pa, viscosity Pa s) and fit the "
-        "Herschel-Bulkley curve sigma = sigma_y + eta * rate^n by least squares in log10 stress over the reliable "
-        "range (default 1..100 1/s). Optionally score a given material (e.g. a video estimate) on the same range.",
-    )
+    p = add_command(subparsers, __doc__)
     p.add_argument("file", metavar="FILE.csv", help="instrument CSV export")
     p.add_argument("--lo", type=real, default=1.0, help="lowest shear rate of the fit, 1/s (default 1)")
     p.add_argument("--hi", type=real, default=100.0, help="highest shear rate of the fit, 1/s (default 100)")
