@@ -105,6 +105,9 @@ class InformationCheck(JsonRecord):
 
     hessian_nats: float  # 1/2 log det(I + Sigma_prior F_done), F_done = tau H_done (similarity.information)
     posterior_nats: float  # 1/2 log det(Sigma_prior Sigma^-1)
+    # c: the one factor on every Fisher information with which the setups done carry the posterior's nats; the
+    # candidates' nats are calibrated with it (None: no such factor, e.g. a posterior no narrower than the prior)
+    scale: float | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -127,8 +130,9 @@ class Ranking:
 
     @property
     def nats(self) -> bool:
-        """Whether the score is an expected information gain in nats (else a unitless score, or S_p)."""
-        return self.criterion == "eig" or self.check is not None
+        """Whether the score is an expected information gain in nats (else a unitless score, or S_p): ``eig``'s, and
+        ``information``'s with a posterior whose nats the simulated Hessians were calibrated to."""
+        return self.criterion == "eig" or (self.check is not None and self.check.scale is not None)
 
     def __len__(self) -> int:
         return len(self.score)
@@ -322,13 +326,25 @@ def rank_setups(material, done, theta="reference", variant: str = "scaled", crit
 
 def information_check(h_done_mean, noise, covariance) -> InformationCheck:
     """:class:`InformationCheck` from the Hessian of the run's mean loss over its setups, its noise model and the
-    posterior covariance (normalised space)."""
+    posterior covariance (normalised space); its ``scale`` c solves 1/2 log det(I + Sigma_prior c F_done) =
+    the posterior's nats (increasing in c)."""
+    from scipy.optimize import brentq
+
     from similarity.information import fisher_information
 
     prior = np.eye(3) / PRIOR_PRECISION
-    fd = float(expected_information_gain(prior, fisher_information(h_done_mean, noise)))
+    f_done = fisher_information(h_done_mean, noise)
+    fd = float(expected_information_gain(prior, f_done))
     post = 0.5 * float(np.linalg.slogdet(prior)[1] - np.linalg.slogdet(np.asarray(covariance, float))[1])
-    return InformationCheck(fd, post)
+
+    def excess(log_c):
+        return float(expected_information_gain(prior, np.exp(log_c) * f_done)) - post
+
+    lo, hi = np.log(1e-8), np.log(1e8)
+    scale = None
+    if post > 0 and np.isfinite(fd) and excess(lo) < 0 < excess(hi):
+        scale = float(np.exp(brentq(excess, lo, hi, xtol=1e-10)))
+    return InformationCheck(fd, post, scale)
 
 
 def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_step: float | None = None, tick=None,
@@ -337,9 +353,10 @@ def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_
     ``material`` after the setups ``done`` (module docstring), simulated by ``forward`` with the preset's final model;
     higher is better.  Without a posterior the score is the unitless log det gain.  With a posterior's ``covariance``
     (normalised space) and its ``noise`` (:class:`similarity.likelihood.NoiseScale`) it is the expected information
-    gain in nats, 1/2 log det(I + Sigma F_c), each candidate's Fisher information F_c = tau_c H_c weighted by its own
-    noise (:func:`similarity.information.candidate_noise`: one more simulation per setup, at half the cell width);
-    ``Ranking.check`` then says how well the Hessians of the setups done explain the posterior.  A setup whose
+    gain in nats, 1/2 log det(I + Sigma c F_c), each candidate's Fisher information F_c = tau_c H_c weighted by its
+    own noise (:func:`similarity.information.candidate_noise`: one more simulation per setup, at half the cell width)
+    and calibrated by the factor c with which the Hessians of the setups done carry the posterior's nats
+    (:func:`information_check`, ``Ranking.check``; without such a factor, c = 1 and the score is unitless).  A setup whose
     simulations failed is left out.  The ranking's ``facts`` hold each setup's measured CPU seconds per simulation
     and the flow of its footage at the estimate."""
     from similarity.information import (STEP, candidate_noise, fisher_information, grid_setups, interior,
@@ -368,10 +385,11 @@ def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_
             noises = candidate_noise(material, setups, noise, preset=preset, forward=forward, fd_step=step, tick=tick)
         except RuntimeError as exc:
             raise ValueError(f"cannot weigh the setups by their noise: {first_line(exc)}") from None
-        gains = np.array([np.nan if h is None or z is None else
-                          float(expected_information_gain(covariance, fisher_information(h, z)))
-                          for h, z in zip(hessians, noises)])
         check = information_check(h_done / len(done), noise, covariance)
+        c = 1.0 if check.scale is None else check.scale
+        gains = np.array([np.nan if h is None or z is None else
+                          float(expected_information_gain(covariance, c * fisher_information(h, z)))
+                          for h, z in zip(hessians, noises)])
     ok = np.isfinite(gains)
     if not ok.any():
         raise ValueError(f"every simulation of the candidate setups around {material} failed")

@@ -361,7 +361,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                                   covariance=post.cov, noise=noise)
         best, gain = info.best()
         top = info.top(3, get_preset(SIMULATION_PRESET).generations)
-        next_info = {"setup": str(best), "eig_nats": gain, "preset": SIMULATION_PRESET,
+        next_info = {"setup": str(best), "eig_nats" if info.nats else "score": gain, "preset": SIMULATION_PRESET,
                      "top": [t.to_dict() for t in top], "check": info.check.to_dict()}
     except ValueError as exc:
         next_info = {"error": str(exc).splitlines()[0]}

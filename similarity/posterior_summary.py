@@ -102,8 +102,8 @@ class PosteriorSummary(JsonRecord):
     next_setups_eig: list  # the ten best next setups: {"setup", "eig_nats"}
     next_setup_perpendicular: dict  # {"setup", "score", "eig_nats"}, or {"error"}
     # simulated information (similarity.design.rank_by_simulation with the posterior's covariance and noise):
-    # {"setup", "eig_nats", "preset", "top", "check"} ({"setup", "log_det_gain", ...} in files written before the
-    # noise weighting), or {"error"}; None in files written before it
+    # {"setup", "eig_nats" (or "score" where no factor calibrates it), "preset", "top", "check"} ({"setup",
+    # "log_det_gain", ...} in files written before the noise weighting), or {"error"}; None in files written before it
     next_setup_information: dict | None = None
     rheometer_band_coverage: float | None = None  # set by the HTML report when given a rheometer curve
     evidence: EvidenceSummary | None = None  # the laws' evidences and verdicts; None in files written before them
@@ -140,4 +140,6 @@ def information_gain(next_setup_information: dict) -> tuple[float, str]:
     unitless log det gain of files written before the noise weighting."""
     if "eig_nats" in next_setup_information:
         return float(next_setup_information["eig_nats"]), "nats"
+    if "score" in next_setup_information:  # weighted by the noise, but not calibrated to the posterior
+        return float(next_setup_information["score"]), "a unitless score, not calibrated to the posterior"
     return float(next_setup_information["log_det_gain"]), "log det gain, a unitless score"

@@ -243,8 +243,11 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
                         f"{', each weighted by its own noise' if unit == 'nats' else ''}): "
                         f"<b>{e(info['setup'])}</b> mm, {gain:.4f} {e(unit)}. {info_line}.</p>")
         if info.get("check"):
-            reliability += (f"<p>Calibration: the setups done carry {info['check']['hessian_nats']:.2f} nats by their "
-                            f"simulated Hessians, {info['check']['posterior_nats']:.2f} nats in the posterior.</p>")
+            c = info["check"]
+            reliability += (f"<p>Calibration: the setups done carry {c['hessian_nats']:.2f} nats by their simulated "
+                            f"Hessians, {c['posterior_nats']:.2f} nats in the posterior"
+                            + (f"; every Fisher information is scaled by {c['scale']:.3g}" if c.get("scale") is not None
+                               else "") + ".</p>")
         if info.get("top"):
             reliability += (f"<table><tr><th>setup</th><th>gain ({e(unit.split(',')[0])})</th><th>material</th><th>CPU min per "
                             "estimation stage</th><th>runout at the estimate</th><th>flags</th></tr>" + "".join(

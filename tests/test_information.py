@@ -143,10 +143,17 @@ def test_the_information_check_agrees_where_the_posterior_is_the_laplace_posteri
     noise = _noise()
     cov = np.linalg.inv(12.0 * np.eye(3) + noise.precision * h)
     c = information_check(h, noise, cov)
-    assert c.hessian_nats == pytest.approx(c.posterior_nats, rel=1e-9)
+    assert c.hessian_nats == pytest.approx(c.posterior_nats, rel=1e-9) and c.scale == pytest.approx(1.0, rel=1e-6)
     assert c.posterior_nats == pytest.approx(0.5 * np.sum(np.log(1 + noise.precision * np.array([900, 40, 2]) / 12)))
-    # a posterior twice as precise in every direction carries 3/2 log 2 nats more than the Hessians say
-    assert information_check(h, noise, cov / 2).posterior_nats - c.hessian_nats == pytest.approx(1.5 * np.log(2))
+    # a posterior twice as precise in every direction carries 3/2 log 2 nats more than the Hessians say; the factor
+    # that makes them carry it is the one that solves the same equation
+    sharper = information_check(h, noise, cov / 2)
+    assert sharper.posterior_nats - c.hessian_nats == pytest.approx(1.5 * np.log(2))
+    prior = np.eye(3) / 12.0
+    lam = np.linalg.eigvalsh(prior @ (sharper.scale * noise.precision * h))
+    assert 0.5 * np.sum(np.log1p(lam)) == pytest.approx(sharper.posterior_nats, rel=1e-8) and sharper.scale > 1
+    # a posterior no narrower than the prior: no factor, so no nats
+    assert information_check(h, noise, np.eye(3) / 6.0).scale is None
 
 
 def test_with_a_posterior_the_criterion_scores_in_nats_each_setup_weighted_by_its_own_noise(monkeypatch):
@@ -184,9 +191,10 @@ def test_with_a_posterior_the_criterion_scores_in_nats_each_setup_weighted_by_it
     cov = np.linalg.inv(12.0 * np.eye(3) + 50.0 * np.eye(3))
     r = design.rank_by_simulation(material, done, forward=None, covariance=cov, noise=noise)
     assert r.nats and r.check is not None and len(r) == 16
+    assert r.check.scale is not None and r.check.scale > 0
     for w, h, score in zip(r.width_mm, r.height_mm, r.score):
         s = Setup(w, h)
-        tau = noise.for_new_setup(8, deltas[str(s)]).precision
+        tau = r.check.scale * noise.for_new_setup(8, deltas[str(s)]).precision
         hs = I.setup_hessian(stencil(material, [s])[0])
         assert score == pytest.approx(0.5 * np.linalg.slogdet(np.eye(3) + cov @ (tau * hs))[1], rel=1e-9)
     deltas.update({k: 10 * v for k, v in deltas.items()})  # every setup noisier: every score lower

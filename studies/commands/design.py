@@ -176,7 +176,9 @@ def run(args) -> int:
         if ranking.check is not None:
             c = ranking.check
             print(f"  calibration: the setups done carry {c.hessian_nats:.2f} nats by their simulated Hessians and the "
-                  f"run's noise, {c.posterior_nats:.2f} nats in the posterior (against the uniform prior)")
+                  f"run's noise, {c.posterior_nats:.2f} nats in the posterior (against the uniform prior); "
+                  + (f"every Fisher information is scaled by {c.scale:.3g} to match" if c.scale is not None else
+                     "no factor matches them, so the score is not in nats"))
         print(top_table(top, args.criterion, model_name, generations))
         print("  " + reliability_line(validated))
         if plot_path:
@@ -188,13 +190,17 @@ TOP = 3  # candidates printed with their volume, cost and flags
 SCORE_UNIT = {"perpendicularity": "S_p, unitless, lower is better",
               "eig": "nats under the linear-Gaussian model",
               "information": "a unitless score: the loss Hessians are not scaled by the footage's noise"}
-NATS_UNIT = ("nats under the linear-Gaussian model: the simulated Hessians weighted by each setup's noise, the run's "
-             "posterior covariance")
+NATS_UNIT = ("nats under the linear-Gaussian model: the simulated Hessians weighted by each setup's noise and "
+             "calibrated to the run's posterior, its covariance")
+UNCALIBRATED_UNIT = ("a unitless score: the simulated Hessians weighted by each setup's noise, but no factor makes the "
+                     "setups done carry the posterior's nats")
 
 
 def score_unit(ranking) -> str:
     """What the ranking's score is, in words."""
-    return NATS_UNIT if ranking.criterion == "information" and ranking.nats else SCORE_UNIT[ranking.criterion]
+    if ranking.criterion == "information" and ranking.check is not None:
+        return NATS_UNIT if ranking.nats else UNCALIBRATED_UNIT
+    return SCORE_UNIT[ranking.criterion]
 
 
 def top_table(top, criterion: str, model_name: str, generations: int) -> str:

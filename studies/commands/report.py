@@ -88,8 +88,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"next setup by simulated information: {info['setup']} mm ({gain:.3f} {unit}; {info['preset']} preset's "
               f"model{weighted})")
         if info.get("check"):
-            print(f"  calibration: the setups done carry {info['check']['hessian_nats']:.2f} nats by their simulated "
-                  f"Hessians, {info['check']['posterior_nats']:.2f} nats in the posterior")
+            c = info["check"]
+            print(f"  calibration: the setups done carry {c['hessian_nats']:.2f} nats by their simulated Hessians, "
+                  f"{c['posterior_nats']:.2f} nats in the posterior"
+                  + (f"; Fisher information scaled by {c['scale']:.3g}" if c.get("scale") is not None else ""))
         for t in info.get("top", []):
             flags = "; ".join(t["flags"] or [])
             print(f"  {t['setup']:>6} mm: gain {t['score']:.3f}, {t['volume_ml']:.0f} ml, {t['cost_cpu_min']:.1f} CPU min "
