@@ -22,7 +22,8 @@ class Engine:
         self.atomic = not runtime.on_cpu() or os.environ.get("VIRHEO_MPM_ATOMIC") == "1"
         self.tasks = 1 if self.atomic else runtime.threads()
         self.serial = self.tasks == 1 and not self.atomic  # all steps of a call in one launch
-        self.step, self.init_bbox, self.grid_mass, self.params = build_kernels(dim, self.tasks, self.atomic)
+        (self.step, self.init_bbox, self.grid_mass, self.params, self.particle_arrays,
+         self.grid_arrays) = build_kernels(dim, self.tasks, self.atomic)
         self.cap_p = 0
         self.cap_g = 0
         self.warm = False  # True once every kernel has run (compiled or loaded from the cache)
@@ -54,6 +55,15 @@ class Engine:
         self.grid = ti.Vector.ndarray(self.dim + 1, self.dtype, self.tasks * cap)
         self.zero(self.grid)
         self.cap_g = cap
+
+    def particles(self):
+        """The particle arrays as the step kernel's argument pack."""
+        return self.particle_arrays(x=self.x, v=self.v, C=self.C, be=self.be, iso=self.iso, loge=self.loge,
+                                    flags=self.flags)
+
+    def grid_state(self):
+        """The grid arrays as the step kernel's argument pack."""
+        return self.grid_arrays(grid=self.grid, win=self.win, acc=self.acc, accf=self.accf)
 
     def zero(self, arr) -> None:
         """Set a vector or matrix ndarray to zero. (Taichi's ``fill`` on those instantiates a template kernel

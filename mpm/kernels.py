@@ -37,6 +37,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
     nd = ti.types.ndarray()
     serial = tasks == 1 and not atomic
     params = step_params(D)
+    particle_arrays, grid_arrays = array_groups()
     stencil_base, ugimp, window, lead_weights, column, LEADS = build_stencil(D)
     L = D - 1  # the last axis: unit stride in the grid, innermost in the stencil loops
     load_boxes, in_box, zcoord, navier_slip = build_walls(D, window)
@@ -336,18 +337,23 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
             p0, p1 = share(t, n)
         return p0, p1
 
+    @ti.func
+    def step_of(pt: ti.template(), gs: ti.template(), bx, lim: ti.template(), prm, yue: ti.template(),
+                slipping: ti.template(), dens: ti.template()):
+        step_body(pt.x, pt.v, pt.C, pt.be, pt.iso, pt.loge, pt.flags, gs.grid, gs.win, gs.acc, gs.accf, bx, lim, prm,
+                  yue, slipping, dens)
+
     @ti.kernel
-    def step(x: nd, v: nd, C: nd, be: nd, iso: nd, loge: nd, flags: nd, grid: nd, win: nd, acc: nd, accf: nd,
-             boxes: nd, lim: nd, prm: params, steps: ti.i32, yue: ti.template(), slipping: ti.template(),
-             dens: ti.template()):
+    def step(pt: particle_arrays, gs: grid_arrays, boxes: nd, lim: nd, prm: params, steps: ti.i32,
+             yue: ti.template(), slipping: ti.template(), dens: ti.template()):
         if ti.static(serial):  # one thread: all ``steps`` steps in one launch, loops run in order
             for _ in range(1):
                 bx = load_boxes(boxes)
                 for _s in range(steps):
-                    step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, prm, yue, slipping, dens)
+                    step_of(pt, gs, bx, lim, prm, yue, slipping, dens)
         else:  # parallel loops: one step per launch
             bx = load_boxes(boxes)
-            step_body(x, v, C, be, iso, loge, flags, grid, win, acc, accf, bx, lim, prm, yue, slipping, dens)
+            step_of(pt, gs, bx, lim, prm, yue, slipping, dens)
 
     @ti.kernel
     def init_bbox(x: nd, acc: nd, accf: nd, prm: params):
@@ -372,7 +378,7 @@ def build_kernels(dim: int, tasks: int, atomic: bool):
         for i in range(win[COUNT]):
             out[0] += grid[i][D]
 
-    return step, init_bbox, grid_mass, params
+    return step, init_bbox, grid_mass, params, particle_arrays, grid_arrays
 
 
 def step_params(dim: int):
@@ -382,3 +388,13 @@ def step_params(dim: int):
     return ti.types.struct(n=ti.i32, capg=ti.i32, dt=float, dx=float, mp=float, vol=float, kappa=float, mu=float,
                            eta=float, n_power=float, sy=float, body=ti.types.vector(dim, float), zmid=float, lh=float,
                            slip=float)
+
+
+def array_groups():
+    """The step kernel's arrays in two argument packs: the particles' state (positions x, velocities v, velocity
+    gradients C, elastic left Cauchy-Green tensors be, their isochoric factors iso, the Newton solve's last log
+    excess stress loge, the flag bits) and the grid's (node values of every task copy, the window record, each task's
+    stencil bounding box and top speed)."""
+    nd = ti.types.ndarray()
+    return (ti.types.argpack(x=nd, v=nd, C=nd, be=nd, iso=nd, loge=nd, flags=nd),
+            ti.types.argpack(grid=nd, win=nd, acc=nd, accf=nd))

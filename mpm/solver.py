@@ -220,9 +220,10 @@ class _Run:
     def _launch_steps(self, launches: int, per_launch: int, dt: float) -> None:
         eng = self.eng
         prm = self._params(dt)
+        particles, grid = eng.particles(), eng.grid_state()
         for _ in range(launches):
-            eng.step(eng.x, eng.v, eng.C, eng.be, eng.iso, eng.loge, eng.flags, eng.grid, eng.win, eng.acc,
-                     eng.accf, eng.boxes, eng.lim, prm, per_launch, self.yue, self.slip_m > 0, self.density_correction)
+            eng.step(particles, grid, eng.boxes, eng.lim, prm, per_launch, self.yue, self.slip_m > 0,
+                     self.density_correction)
 
     def _advance(self, steps: int, dt: float) -> None:
         """Run ``steps`` steps of size dt, growing the grid whenever the window overflows it."""
