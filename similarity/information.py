@@ -228,12 +228,14 @@ def candidate_noise(estimate, setups, noise, *, preset, forward, fd_step: float 
     """The predicted noise model (:meth:`similarity.likelihood.NoiseScale.for_new_setup`) of each of ``setups`` at
     ``estimate``, from ``noise`` (the run's) with the setup's own frames and discretisation error (its footage at the
     estimate with the preset's final model against half its cell width: one more simulation per setup); None where
-    a simulation failed."""
+    a simulation failed.  Where the run's noise counts no discretisation term (`virheo report --no-discretisation`),
+    neither do the candidates', and nothing more is simulated."""
     from similarity.emulation import emulate
 
     center = interior(estimate, fd_step)
     shells = emulate(center, list(setups), preset=preset, forward=forward, on_result=tick)  # the stencil's footage
-    deltas = discretisation_losses(center, shells, preset.final, forward)
+    deltas = (discretisation_losses(center, shells, preset.final, forward) if noise.discretisation > 0
+              else [0.0] * len(shells))
     return [None if d is None else noise.for_new_setup(len(e.frames), d) for e, d in zip(shells, deltas)]
 
 

@@ -204,3 +204,21 @@ def test_with_a_posterior_the_criterion_scores_in_nats_each_setup_weighted_by_it
     assert not unweighted.nats and unweighted.check is None
     with pytest.raises(ValueError, match="both the posterior's covariance and its noise"):
         design.rank_by_simulation(material, done, forward=None, covariance=cov)
+
+
+def test_a_run_without_a_discretisation_term_gives_its_candidates_none(fake_forward):
+    """`virheo report --no-discretisation`: the run's noise has delta_disc = 0, and so has every candidate's (nothing is
+    simulated at half the cell width); with the term, each candidate's is its own simulated loss."""
+    from mpm.params import Material, Setup
+    from similarity.presets import get_preset
+
+    setups, preset = [Setup(70.0, 70.0), Setup(30.0, 20.0)], get_preset("demo")
+    zero = I.candidate_noise(Material(4.0, 0.6, 8.0), setups, _noise(disc=0.0), preset=preset, forward=fake_forward)
+    assert [z.discretisation for z in zero] == [0.0, 0.0] and all(z.frames == 8 for z in zero)
+    own = I.candidate_noise(Material(4.0, 0.6, 8.0), setups, _noise(), preset=preset, forward=fake_forward)
+    center = I.interior(Material(4.0, 0.6, 8.0))
+    from similarity.emulation import emulate
+
+    expected = I.discretisation_losses(center, emulate(center, setups, preset=preset, forward=fake_forward),
+                                       preset.final, fake_forward)
+    assert [z.discretisation for z in own] == pytest.approx(expected)
