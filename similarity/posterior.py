@@ -219,7 +219,8 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     ``posterior_samples.npy``, the resumable ``posterior.h5`` and the checks' draws ``posterior_draws.npy`` into
     the folder.  The box grows until it reaches every law's face and holds every law's posterior.
     ``forward``: the store and executor that simulate (default: the run's store, in this process)."""
-    from similarity.design import SIMULATION_PRESET, rank_by_simulation, rank_setups
+    from similarity.design import rank_setups
+    from similarity.simulated_design import SIMULATION_PRESET, rank_by_simulation
     from similarity.ellipsoid import alignment, ellipsoid
     from similarity.fd_hessian import fd_hessian
     from similarity.presets import get_preset

@@ -101,7 +101,7 @@ class PosteriorSummary(JsonRecord):
     eig_grid: list | None = None  # EIG [nats] over the setup grid (rows: heights)
     next_setups_eig: list  # the ten best next setups: {"setup", "eig_nats"}
     next_setup_perpendicular: dict  # {"setup", "score", "eig_nats"}, or {"error"}
-    # simulated information (similarity.design.rank_by_simulation with the posterior's covariance and noise):
+    # simulated information (similarity.simulated_design.rank_by_simulation with the posterior's covariance and noise):
     # {"setup", "eig_nats" (or "score" where no factor calibrates it), "preset", "top", "check"} ({"setup",
     # "log_det_gain", ...} in files written before the noise weighting), or {"error"}; None in files written before it
     next_setup_information: dict | None = None

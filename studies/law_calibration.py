@@ -110,7 +110,7 @@ def _film(truth, setup, folder, config, forward):
 def run_case(case: LawCase, *, config: dict, forward, progress=None) -> LawRecord:
     """Footage, stage-1 estimate, designed second setup, two-setup estimate and the laws' evidence of one case."""
     from similarity import estimate as E
-    from similarity.design import SIMULATION_PRESET, rank_by_simulation
+    from similarity.simulated_design import SIMULATION_PRESET, rank_by_simulation
     from similarity.posterior import analyse
 
     folder, truth = Path(case.folder), case.truth

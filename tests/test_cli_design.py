@@ -183,7 +183,7 @@ def test_design_information_keeps_within_the_volume_and_cost_asked(tmp_path, mon
 
 
 def test_setup_facts_flag_a_flow_that_leaves_the_view_or_hardly_moves():
-    from similarity.design import MIN_RUNOUT_MM, SetupFacts
+    from similarity.simulated_design import MIN_RUNOUT_MM, SetupFacts
 
     assert SetupFacts(1.0, 30.0, False).flags() == []
     assert "leaves the camera's view" in SetupFacts(1.0, 30.0, True).flags()[0]

@@ -20,7 +20,8 @@ from mpm.params import SETUP_RANGE_MM, Material, Setup
 from poiseuille import loss as poiseuille_loss
 from similarity import estimate as E
 from similarity import information as I
-from similarity.design import rank_by_simulation, rank_setups
+from similarity.design import rank_setups
+from similarity.simulated_design import rank_by_simulation
 from similarity.fd_hessian import stencil
 from similarity.normals import loss_normals
 from similarity.space import candidate_setups, denormalize, normalize

@@ -136,7 +136,7 @@ def test_a_new_setups_noise_keeps_the_runs_misfit_and_residuals_per_frame_and_ta
 
 def test_the_information_check_agrees_where_the_posterior_is_the_laplace_posterior_of_the_hessians():
     """Sigma^-1 = 12 I + tau H_done: the setups done carry the same nats by their Hessians and in the posterior."""
-    from similarity.design import information_check
+    from similarity.simulated_design import information_check
 
     v = _rotation(3)
     h = v @ np.diag([900.0, 40.0, 2.0]) @ v.T
@@ -161,7 +161,7 @@ def test_with_a_posterior_the_criterion_scores_in_nats_each_setup_weighted_by_it
     1/2 log det(I + Sigma tau_c H_c) with tau_c from its own discretisation; a noisier setup scores lower than the same
     Hessian with less noise would."""
     from mpm.params import Material, Setup
-    from similarity import design
+    from similarity import simulated_design as design
     from similarity.fd_hessian import stencil as stencil_offsets
 
     rng = np.random.default_rng(5)

@@ -61,7 +61,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from similarity.design import SIMULATION_PRESET, rank_setups
+    from similarity.design import rank_setups
+    from similarity.simulated_design import SIMULATION_PRESET
     from similarity.information import SIMULATIONS_PER_SETUP, grid_setups
     from similarity.presets import PRESETS, filming, get_preset
     from mpm.params import Material, Setup
@@ -223,7 +224,7 @@ def simulated_ranking(material, done, args, preset, setups=None, covariance=None
     import warnings
 
     from mpm.forward import Forward
-    from similarity.design import rank_by_simulation
+    from similarity.simulated_design import rank_by_simulation
     from studies.commands.context import check_engine, report_data_losses, simulator
 
     if args.workers is not None and args.workers < 0:

@@ -107,7 +107,7 @@ def _largest(first: Setup) -> Setup:
 def _simulated(estimate, first, cands, *, config, preset, forward, tick):
     """The ``information`` criterion: (its pick, as `virheo design` makes it, predicted gain by setup name of its
     grid and of the other candidates, why it fell back)."""
-    from similarity.design import rank_by_simulation
+    from similarity.simulated_design import rank_by_simulation
 
     try:
         ranking = rank_by_simulation(estimate, [first], preset=preset, forward=forward, fd_step=config["fd_step"],

@@ -199,7 +199,7 @@ def _cpu(result) -> float:
 
 def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> OutcomeRecord:
     """Stage 1 and every arm of one case."""
-    from similarity.design import SIMULATION_PRESET, rank_by_simulation
+    from similarity.simulated_design import SIMULATION_PRESET, rank_by_simulation
     from similarity.emulation import emulate
     from similarity.estimate import estimate, get_preset
     from similarity.information import SIMULATIONS_PER_SETUP
