@@ -37,8 +37,8 @@ from mpm.store import SimRequest, SimResult, Store, digest
 DEFAULT_SIMULATOR = "mpm.batch:run_mpm"
 
 # Source files of this package that do not change what a simulation computes.
-_NOT_SIMULATION = {"store.py", "store_index.py", "batch.py", "forward.py", "datasets.py", "experiment.py", "loss.py",
-                   "shear.py", "ranges.py", "laws.py", "model.py", "__init__.py"}
+_NOT_SIMULATION = {"store.py", "store_index.py", "files.py", "batch.py", "forward.py", "datasets.py", "experiment.py",
+                   "loss.py", "shear.py", "ranges.py", "laws.py", "model.py", "__init__.py"}
 
 
 # -- requests --------------------------------------------------------------------------------------

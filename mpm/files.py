@@ -11,6 +11,7 @@ import json
 import math
 import os
 import tempfile
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +44,15 @@ def pack(silhouettes: np.ndarray) -> tuple[np.ndarray, tuple]:
     """Bool (F, H, W) -> (uint8 packed bits, shape)."""
     s = np.asarray(silhouettes, dtype=bool)
     return np.packbits(s.reshape(s.shape[0], -1), axis=1), tuple(s.shape)
+
+
+def save_arrays(fh, **arrays) -> None:
+    """``np.savez_compressed`` at deflate level 1: the same ``.npz`` that ``np.load`` reads, about 7 times faster to
+    write for a simulation's packed silhouettes and about a third larger."""
+    with zipfile.ZipFile(fh, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as archive:
+        for name, value in arrays.items():
+            with archive.open(name + ".npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
 
 
 def unpack(packed: np.ndarray, shape) -> np.ndarray:

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from mpm.files import atomic_write, canonical_json, digest, json_default, pack, unpack  # noqa: F401 (re-exported)
+from mpm.files import save_arrays
 from mpm.model import MODEL_FIELDS, ForwardModel
 from mpm.params import DEFAULT_DEPTH_MM, WORKING_SIZE
 from mpm.store_index import INSERT_SIM, open_index
@@ -269,7 +270,7 @@ class Store:
                 request=np.asarray(canonical_json(request.to_dict())),
                 wall_seconds=np.asarray(float(result.wall_seconds)),
             )
-            atomic_write(self._array_path(key), lambda fh: np.savez_compressed(fh, **arrays))
+            atomic_write(self._array_path(key), lambda fh: save_arrays(fh, **arrays))
         status = "ok" if result.ok else "failed"
         with self._db:  # sqlite3 context: BEGIN ... COMMIT
             self._db.execute("BEGIN IMMEDIATE")

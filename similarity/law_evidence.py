@@ -14,7 +14,7 @@ from similarity.posterior_summary import read_posterior
 from similarity.progress import first_line
 from similarity.trust_box import reaches_a_face
 
-TRAINING_FILE = "posterior_training.npz"  # the emulator's training set a report keeps (X, y, seed)
+TRAINING_FILE = "posterior_training.npz"  # the emulator a report keeps: training set X, y, seed, hyperparameters theta
 LAW_NAMES = tuple(LAWS)  # the laws whose evidence a report computes by default
 
 
@@ -66,13 +66,14 @@ def evidence_of_report(folder, laws=LAW_NAMES) -> EvidenceSummary:
         samples = np.load(folder / "posterior_samples.npy")
         with np.load(folder / TRAINING_FILE) as t:
             X, y, seed = t["X"], t["y"], int(t["seed"])
+            theta = t["theta"] if "theta" in t.files else None  # a report before it kept its hyperparameters
     except (OSError, ValueError, KeyError) as exc:
         raise ValueError(f"{folder}: unreadable posterior files ({first_line(exc)}); run `virheo report {folder}` "
                          "again") from None
     if samples.ndim != 2 or samples.shape[1] != 3 or len(samples) == 0:
         raise ValueError(f"{folder}: posterior_samples.npy holds no samples; run `virheo report {folder}` again")
     lo, hi = (np.asarray(v, float) for v in summary.emulator.trust_region)
-    emu = LossEmulator(seed=seed).fit(X, y)
+    emu = LossEmulator(seed=seed).fit(X, y, theta=theta)
     evidences, why, _ = law_evidences(laws, summary.noise, emu, samples, lo, hi, seed=seed)
     if not evidences:
         raise ValueError(f"{folder}: {why} (never extrapolated); run `virheo report {folder} --laws "

@@ -2,10 +2,11 @@
 
 * Prior: uniform on the paper's material space, i.e. on [0, 1]^3 in normalised coordinates
   (:mod:`similarity.space`), restricted to the emulator's trust region: the box estimate +- ``half_width``
-  clipped to the material space, where its training simulations lie.  The box doubles, with a new batch
-  of simulations each time, while the posterior reaches one of its faces inside the material space: a
-  sample in the box's outer ``EDGE`` there within ``REACH_NATS`` of the best (:func:`reaches_a_face`), up to
-  the whole space.  A face on the material space's own boundary is where the prior ends, so a posterior
+  clipped to the material space, where its training simulations lie.  It starts as the first that reaches
+  the face of every law asked for (:func:`similarity.trust_box.first_box`), with every smaller box's batch of
+  new simulations, and doubles, with a new batch each time, while the posterior reaches one of its faces
+  inside the material space: a sample in the box's outer ``EDGE`` there within ``REACH_NATS`` of the best
+  (:func:`reaches_a_face`), up to the whole space.  A face on the material space's own boundary is where the prior ends, so a posterior
   resting there is not cut.
 * Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
@@ -32,7 +33,7 @@ from mpm.files import write_json
 from mpm.params import Material
 from similarity.evidence import parse_laws, summarise
 from similarity.law_evidence import LAW_NAMES, TRAINING_FILE, face_draws, law_evidences
-from similarity.trust_box import REACH_NATS, cut_fraction, reaches_a_face
+from similarity.trust_box import REACH_NATS, cut_fraction, first_box, reaches_a_face
 from similarity.flow_band import flow_band
 from similarity.mcmc import Posterior, check_backend, sample
 from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, PosteriorStats, PosteriorSummary,  # noqa: F401
@@ -109,7 +110,7 @@ def emulator_error(X, y, noise, split, seed: int = 0, kernel=None):
     predictions (``FOLDS``, folds drawn by ``split``) of the training losses :func:`within_reach` of the best.
     Far from the optimum the loss is steep and rough and the emulator's error large; counting it there would
     flatten the likelihood near the optimum, where the emulator is accurate.
-    ``kernel``: the full fit's kernel, where each fold's hyperparameter optimisation starts (None: three starts).
+    ``kernel``: the full fit's kernel, whose hyperparameters each fold keeps (None: each fold optimises its own).
     Returns a :class:`surrogate.emulator.Validation` (``n_test``: the losses scored)."""
     from surrogate.emulator import Validation, out_of_fold
 
@@ -151,12 +152,14 @@ class CheckedFit:
 def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, split, seed: int = 0, stage: int = 0,
                       nwalkers: int = 32, min_ess: float = 1000.0, max_steps: int = 20000, backend=None,
                       progress=None, too_few: str = "too few simulated candidates to fit the emulator",
-                      rounds: int = CHECK_ROUNDS):
+                      rounds: int = CHECK_ROUNDS, kernel=None):
     """Fit the loss emulator on (X, y), sample the posterior in the box [lo, hi] and check it against the
     simulator: ``draws`` posterior draws are simulated (``losses``: normalised (k, 3) -> mean losses (k,));
     where the emulator was optimistic there (:func:`posterior_check`) they join the training set and the
     posterior is sampled again, at most ``rounds`` times.  ``split``: the generator of the cross-validation's
     folds (:func:`emulator_error`); the draws are chosen by ``seed``, ``stage`` (the box) and the round.
+    ``kernel``: a fitted GP kernel (an earlier fit's, on part of this training set) where the hyperparameters' one
+    optimisation starts (None: three starts); each retraining starts from the fit before it.
     Returns the last :class:`CheckedFit` (its check describes its posterior; None with ``draws`` 0) and the
     training set grown by the checks' simulations."""
     from mpm.files import digest
@@ -169,8 +172,9 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
         largest_fold = -(-len(yf) // FOLDS)  # ceil: each fold's emulator trains on the rest
         if len(yf) - largest_fold < min_training(3):
             raise ValueError(too_few)
-        emu = LossEmulator(seed=seed).fit(Xf, yf)
-        validation = emulator_error(Xf, yf, base_noise, split, seed=seed, kernel=emu.gp.kernel_)
+        emu = LossEmulator(seed=seed).fit(Xf, yf, kernel=kernel)
+        kernel = emu.gp.kernel_
+        validation = emulator_error(Xf, yf, base_noise, split, seed=seed, kernel=kernel)
         noise = base_noise.with_emulator(validation.rmse)
         if progress:
             progress(Message(f"emulator: {len(yf)} training losses, cross-validated RMSE "
@@ -264,10 +268,14 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
             tmp.replace(draws_file)
         return mean_losses(run, X)
 
-    attempt, face_rounds, face_check, retry = 0, 0, None, False
+    # every law's face must lie in the box, so the loop starts at the first box that reaches them all, with the
+    # smaller boxes' batches simulated at once: the design stays densest at the estimate
+    first = first_box(x_hat, widths, laws)
+    attempt, face_rounds, face_check, retry, fit = first, 0, None, False, None
     while True:
         half_width = widths[attempt]
-        X_new = np.zeros((0, 3)) if retry else batches[attempt]  # a refit after a failed laws' check adds no batch
+        # a refit after a failed laws' check adds no batch
+        X_new = np.zeros((0, 3)) if retry else np.vstack(batches[:first + 1] if attempt == first else batches[attempt])
         in_box = np.all(np.abs(stored - x_hat) <= half_width + 1e-12, axis=1)
         X_old = np.vstack([stored[in_box], x_hat[None]])
         # a re-run finds every batch of new simulations in the store: those are not archive, so the training
@@ -282,6 +290,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
             simulate_draws, X_all, y_all, x_hat, lo, hi, base_noise, draws=new_simulations,
             split=rng, seed=seed, stage=attempt, nwalkers=nwalkers, min_ess=min_ess, max_steps=max_steps,
             backend=run.folder / "posterior.h5", progress=progress,
+            kernel=None if fit is None else fit.emulator.gp.kernel_,
             too_few=f"{run.folder}: the emulator's box +-{half_width:g} holds too few simulated candidates "
                     f"({len(X_old)} from the store made with this solver, {len(X_new)} new) to fit it and hold a "
                     f"fifth out: raise --new-simulations")
@@ -379,7 +388,8 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
                            or (next_eig[0]["setup"] if next_eig else None)) if evidences else None)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     np.save(run.folder / "posterior_log_prob.npy", post.log_prob)  # one log-posterior per sample
-    np.savez(run.folder / TRAINING_FILE, X=fit.X, y=fit.y, seed=seed)  # `virheo laws` refits the emulator from it
+    # `virheo laws` fits the same emulator again from it
+    np.savez(run.folder / TRAINING_FILE, X=fit.X, y=fit.y, seed=seed, theta=fit.emulator.gp.kernel_.theta)
     write_json(run.folder / "posterior.json", summary)
     return Analysis(run, post, noise, emu, summary, frames, box_log_posterior(noise, emu, lo, hi))
 

@@ -33,3 +33,16 @@ def reaches_a_face(samples, log_prob, lo, hi) -> bool:
     log_prob = np.asarray(log_prob, float)
     face = at_inner_face(samples, lo, hi)
     return bool(face.any() and np.max(log_prob[face]) >= np.max(log_prob) - REACH_NATS)
+
+
+def first_box(center, widths, laws) -> int:
+    """Index of the first of ``widths`` (increasing half-widths) whose box around ``center`` reaches the face of every
+    one of ``laws`` (:class:`similarity.evidence.Law`): a smaller box cannot give their evidence, so the loop starts
+    there (the last width when none reaches them all)."""
+    from surrogate.emulator import box
+
+    for k, width in enumerate(widths):
+        lo, hi = box(center, width)
+        if all(law.on_face(lo, hi) for law in laws):
+            return k
+    return len(widths) - 1

@@ -80,16 +80,24 @@ class Validation:
 
 def out_of_fold(X, y, folds: int, rng, seed: int = 0, kernel=None) -> np.ndarray:
     """k-fold cross-validation: every loss of (X, y) predicted by an emulator fitted on the other ``folds`` - 1
-    folds (drawn by the generator ``rng``), so each prediction is held out.  ``kernel``: where every fold's
-    hyperparameter optimisation starts (e.g. the full fit's ``gp.kernel_``; one start instead of three)."""
+    folds (drawn by the generator ``rng``), so each prediction is held out.  ``kernel``: hyperparameters every fold
+    keeps (e.g. the full fit's ``gp.kernel_``), so that a fold refits the trend and conditions the GP but optimises
+    nothing; None: each fold optimises its own (three starts)."""
     X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
     fold = rng.permutation(len(y)) % folds
     predicted = np.empty(len(y))
+    kept = None if kernel is None else frozen(kernel)
     for k in range(folds):
         test = fold == k
         if test.any():
-            predicted[test] = LossEmulator(seed=seed).fit(X[~test], y[~test], kernel=kernel).predict(X[test])
+            predicted[test] = LossEmulator(seed=seed).fit(X[~test], y[~test], kernel=kept).predict(X[test])
     return predicted
+
+
+def frozen(kernel):
+    """A copy of the scikit-learn ``kernel`` with every hyperparameter fixed at its value."""
+    return kernel.clone_with_theta(kernel.theta).set_params(
+        **{name: "fixed" for name in kernel.get_params() if name.endswith("_bounds")})
 
 
 def quadratic_features(X) -> np.ndarray:
@@ -99,6 +107,9 @@ def quadratic_features(X) -> np.ndarray:
     d = X.shape[1]
     cols = [np.ones(len(X))] + [X[:, i] for i in range(d)] + [X[:, i] * X[:, j] for i in range(d) for j in range(i, d)]
     return np.column_stack(cols)
+
+
+SEARCH_SUBSET = 120  # losses the hyperparameters' three starts search on (LossEmulator.fit)
 
 
 class LossEmulator:
@@ -111,9 +122,11 @@ class LossEmulator:
         self.gp = None
         self.validation: Validation | None = None
 
-    def fit(self, X, y, kernel=None) -> "LossEmulator":
+    def fit(self, X, y, kernel=None, theta=None) -> "LossEmulator":
         """Fit the trend and the GP.  ``kernel``: a fitted kernel (with its bounds) to start the hyperparameters'
-        one optimisation from, instead of the default start and two random restarts."""
+        one optimisation from (:func:`frozen`: none), instead of the default start and two random restarts (on a
+        random ``SEARCH_SUBSET`` of the losses where there are more, then one optimisation on all from their best).
+        ``theta``: an earlier fit's hyperparameters (its ``gp.kernel_.theta``), kept: that fit again, nothing optimised."""
         X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
         ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
         X, y = X[ok], y[ok]
@@ -126,6 +139,16 @@ class LossEmulator:
         default = (ConstantKernel(scale, (1e-6 * scale, 1e3 * scale))
                   * RBF(length_scale=0.3 * span, length_scale_bounds=(1e-3, 10.0))
                   + WhiteKernel(0.1 * scale, (1e-8 * scale + 1e-18, 10 * scale)))
+        if theta is not None:
+            kernel = frozen(default.clone_with_theta(np.asarray(theta, float)))
+        if kernel is None and len(y) > SEARCH_SUBSET:
+            # the three starts search on a random subset, the one optimisation on every loss starts from their best:
+            # each step of the search costs (SEARCH_SUBSET / n)^2 of one on everything
+            part = np.random.default_rng(self.seed).choice(len(y), SEARCH_SUBSET, replace=False)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", ConvergenceWarning)
+                kernel = GaussianProcessRegressor(default, n_restarts_optimizer=2, random_state=self.seed).fit(
+                    X[part], resid[part]).kernel_
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ConvergenceWarning)  # a length scale at its bound is a fine answer
             self.gp = GaussianProcessRegressor(default if kernel is None else kernel, normalize_y=False,

@@ -108,3 +108,38 @@ def test_law_names():
     assert [law.name for law in parse_laws("bingham, newtonian,bingham")] == ["herschel-bulkley", "bingham", "newtonian"]
     with pytest.raises(ValueError, match="unknown law 'casson': choose from herschel-bulkley, bingham"):
         parse_laws("bingham,casson")
+
+
+def test_the_emulators_box_starts_at_the_first_width_that_reaches_every_laws_face():
+    from similarity.trust_box import first_box
+    from surrogate.emulator import box
+
+    widths = [0.1, 0.2, 0.4, 0.8, 1.0]
+    special = [LAWS[name] for name in ("bingham", "power-law", "newtonian")]
+    rng = np.random.default_rng(7)
+    for x in [*rng.random((200, 3)), np.array([0.5, N_ONE, SIGMA_Y_ZERO]), np.zeros(3), np.ones(3)]:
+        k = first_box(x, widths, special)
+        reach = [all(law.on_face(*box(x, w)) for law in special) for w in widths]
+        # the first width that reaches both faces (n = 1, sigma_y = 0), or the last
+        assert k == (reach.index(True) if any(reach) else len(widths) - 1)
+        assert first_box(x, widths, [LAWS["herschel-bulkley"]]) == 0
+    assert first_box(np.array([0.5, N_ONE - 0.15, SIGMA_Y_ZERO + 0.3]), widths, special) == 2
+
+
+def test_an_emulator_fitted_again_with_its_hyperparameters_predicts_the_same():
+    from surrogate.emulator import SEARCH_SUBSET, LossEmulator, frozen
+
+    rng = np.random.default_rng(3)
+    X = rng.random((SEARCH_SUBSET + 80, 3))
+    y = (X - 0.4) @ np.diag([3.0, 1.0, 0.5]) @ (X - 0.4).T
+    y = np.diag(y) + 0.05 * np.sin(9 * X[:, 0]) + 1e-4 * rng.standard_normal(len(X))
+    emu = LossEmulator(seed=1).fit(X, y)
+    again = LossEmulator(seed=1).fit(X, y, theta=emu.gp.kernel_.theta)
+    Q = rng.random((50, 3))
+    assert np.allclose(again.predict(Q), emu.predict(Q), rtol=0, atol=1e-12)
+    assert frozen(emu.gp.kernel_).n_dims == 0 and np.allclose(frozen(emu.gp.kernel_).theta, [])
+    # the fit searched on a subset and refined on all: its hyperparameters are an optimum of every loss's likelihood
+    lml, grad = emu.gp.log_marginal_likelihood(emu.gp.kernel_.theta, eval_gradient=True)
+    free = (emu.gp.kernel_.theta > emu.gp.kernel_.bounds[:, 0] + 1e-6) & (
+        emu.gp.kernel_.theta < emu.gp.kernel_.bounds[:, 1] - 1e-6)
+    assert np.all(np.abs(grad[free]) < 1e-2 * max(1.0, abs(lml)))

@@ -59,6 +59,23 @@ def test_pack_round_trip():
     assert np.array_equal(unpack(*pack(s)), s)
 
 
+def test_saved_arrays_read_back_as_npz_and_compress_sparse_silhouettes(tmp_path):
+    from mpm.files import save_arrays
+
+    sil = np.zeros((8, 90, 160), bool)
+    sil[:, 60:, 20:70] = True
+    packed, shape = pack(sil)
+    arrays = dict(silhouettes=packed, shape=np.asarray(shape), stats=np.asarray('{"cpu_s":1.5}'))
+    path = tmp_path / "a.npz"
+    with open(path, "wb") as fh:
+        save_arrays(fh, **arrays)
+    with np.load(path) as z:
+        assert sorted(z.files) == sorted(arrays)
+        assert all(np.array_equal(z[k], v) for k, v in arrays.items())
+        assert np.array_equal(unpack(z["silhouettes"], z["shape"]), sil)
+    assert path.stat().st_size < packed.nbytes / 5
+
+
 def test_put_get_hit_and_failure(tmp_path):
     store = Store(tmp_path)
     rng = np.random.default_rng(1)
