@@ -6,8 +6,8 @@
   the face of every law asked for (:func:`similarity.trust_box.first_box`), with every smaller box's batch of
   new simulations, and doubles, with a new batch each time, while the posterior reaches one of its faces
   inside the material space: a sample in the box's outer ``EDGE`` there within ``REACH_NATS`` of the best
-  (:func:`reaches_a_face`), up to the whole space.  A face on the material space's own boundary is where the prior ends, so a posterior
-  resting there is not cut.
+  (:func:`reaches_a_face`), up to the whole space.  A face on the material space's own boundary is where the
+  prior ends, so a posterior resting there is not cut.
 * Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
   simulations already in the store near the estimate (the CMA-ES archive) plus a scrambled-Sobol
@@ -275,7 +275,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     while True:
         half_width = widths[attempt]
         # a refit after a failed laws' check adds no batch
-        X_new = np.zeros((0, 3)) if retry else np.vstack(batches[:first + 1] if attempt == first else batches[attempt])
+        X_new = np.zeros((0, 3)) if retry else np.vstack(batches[:first + 1]) if attempt == first else batches[attempt]
         in_box = np.all(np.abs(stored - x_hat) <= half_width + 1e-12, axis=1)
         X_old = np.vstack([stored[in_box], x_hat[None]])
         # a re-run finds every batch of new simulations in the store: those are not archive, so the training

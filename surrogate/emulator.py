@@ -126,7 +126,8 @@ class LossEmulator:
         """Fit the trend and the GP.  ``kernel``: a fitted kernel (with its bounds) to start the hyperparameters'
         one optimisation from (:func:`frozen`: none), instead of the default start and two random restarts (on a
         random ``SEARCH_SUBSET`` of the losses where there are more, then one optimisation on all from their best).
-        ``theta``: an earlier fit's hyperparameters (its ``gp.kernel_.theta``), kept: that fit again, nothing optimised."""
+        ``theta``: an earlier fit's hyperparameters (its ``gp.kernel_.theta``), kept: that fit again, nothing
+        optimised."""
         X, y = np.atleast_2d(np.asarray(X, float)), np.asarray(y, float)
         ok = np.isfinite(y) & np.all(np.isfinite(X), axis=1)
         X, y = X[ok], y[ok]
