@@ -22,11 +22,11 @@ paper), in a linear-Gaussian (Laplace) approximation in the normalised material 
   without a posterior c = ``information_scale``;
 * EIG(s) = 1/2 log det(I + Sigma F_s) nats, exact for a linear-Gaussian model.
 
-``criterion="information"`` (:func:`similarity.simulated_design.rank_by_simulation`) asks the simulator instead of the plane-Poiseuille
-model: the 16 setups of :func:`similarity.information.grid_setups` are scored by the log det gain of their FD loss
-Hessians at the current estimate (sequential D-optimal design, :func:`similarity.information.predicted_gains`),
-19 simulations per setup.  It sees how much a setup pins down as well as which direction, which the Theta-based
-criteria do not (docs/uncertainty.md, "Does the design pay off?").
+``criterion="information"`` (:func:`similarity.simulated_design.rank_by_simulation`) asks the simulator instead of
+the plane-Poiseuille model: the 16 setups of :func:`similarity.information.grid_setups` are scored by the log det
+gain of their FD loss Hessians at the current estimate (sequential D-optimal design,
+:func:`similarity.information.predicted_gains`), 19 simulations per setup. It sees how much a setup pins down as
+well as which direction, which the Theta-based criteria do not (docs/uncertainty.md, "Does the design pay off?").
 
 A setup done in which Theta's plane-Poiseuille setup does not flow at the material (P L <= sigma_y: a thin box and
 a yield stress) has no loss normal and no Hessian.  The Theta-based criteria leave it out, with a line in

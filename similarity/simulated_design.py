@@ -81,8 +81,8 @@ def rank_by_simulation(material, done, *, preset=SIMULATION_PRESET, forward, fd_
     gain in nats, 1/2 log det(I + Sigma c F_c), each candidate's Fisher information F_c = tau_c H_c weighted by its
     own noise (:func:`similarity.information.candidate_noise`: one more simulation per setup, at half the cell width)
     and calibrated by the factor c with which the Hessians of the setups done carry the posterior's nats
-    (:func:`information_check`, ``Ranking.check``; without such a factor, c = 1 and the score is unitless).  A setup whose
-    simulations failed is left out.  The ranking's ``facts`` hold each setup's measured CPU seconds per simulation
+    (:func:`information_check`, ``Ranking.check``; without such a factor, c = 1 and the score is unitless).  A setup
+    whose simulations failed is left out.  The ranking's ``facts`` hold each setup's measured CPU seconds per simulation
     and the flow of its footage at the estimate."""
     from similarity.information import (STEP, candidate_noise, fisher_information, grid_setups, interior,
                                         predicted_hessians, realised_gains)

@@ -1,10 +1,11 @@
 """Does the ``information`` criterion's measure survive a finer model?  The log det gain of a fixed set of candidates
 after setup 1, computed at several MPM discretisations, compared with the finest.
 
-The ``information`` criterion (:func:`similarity.simulated_design.rank_by_simulation`) ranks setups by the log det gain of
-their FD loss Hessians (:func:`similarity.information.predicted_gains`) computed with one forward model.  At 5 mm
-cells a 20 mm box is 4 cells across and heights come in 5 mm bands, so its ranking may be the coarse model's and
-not the material's.  This study computes exactly that measure for the same materials and setups at several models:
+The ``information`` criterion (:func:`similarity.simulated_design.rank_by_simulation`) ranks setups by the log det
+gain of their FD loss Hessians (:func:`similarity.information.predicted_gains`) computed with one forward model. At
+5 mm cells a 20 mm box is 4 cells across and heights come in 5 mm bands, so its ranking may be the coarse model's
+and not the material's. This study computes exactly that measure for the same materials and setups at several
+models:
 
 * **materials** (:data:`MATERIALS`): four materials of the interior of the space (every FD probe at the pinned step
   is a material of the space), modelled on Table 1's sauces and creams: two runny ones with sigma_y < 5 Pa, a
