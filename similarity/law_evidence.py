@@ -73,7 +73,11 @@ def evidence_of_report(folder, laws=LAW_NAMES) -> EvidenceSummary:
     if samples.ndim != 2 or samples.shape[1] != 3 or len(samples) == 0:
         raise ValueError(f"{folder}: posterior_samples.npy holds no samples; run `virheo report {folder}` again")
     lo, hi = (np.asarray(v, float) for v in summary.emulator.trust_region)
-    emu = LossEmulator(seed=seed).fit(X, y, theta=theta)
+    try:
+        emu = LossEmulator(seed=seed).fit(X, y, theta=theta)
+    except ValueError as exc:  # a training file whose arrays do not fit together
+        raise ValueError(f"{folder}: unreadable {TRAINING_FILE} ({first_line(exc)}); run `virheo report {folder}` "
+                         "again") from None
     evidences, why, _ = law_evidences(laws, summary.noise, emu, samples, lo, hi, seed=seed)
     if not evidences:
         raise ValueError(f"{folder}: {why} (never extrapolated); run `virheo report {folder} --laws "

@@ -227,3 +227,11 @@ def test_laws_bad_input_is_one_line_exit_2(reported, tmp_path):
     assert len(proc.stderr.strip().splitlines()) == 1
     proc = _cli("laws", str(tmp_path / "nowhere"))
     assert proc.returncode == 2 and "no posterior.json" in proc.stderr
+    bad = tmp_path / "bad"
+    shutil.copytree(run, bad, ignore=shutil.ignore_patterns("store", "report", "overlays"))
+    with np.load(bad / "posterior_training.npz") as t:
+        arrays = {k: t[k] for k in t.files}
+    np.savez(bad / "posterior_training.npz", **{**arrays, "theta": arrays["theta"][:2]})
+    proc = _cli("laws", str(bad))
+    assert proc.returncode == 2 and "unreadable posterior_training.npz" in proc.stderr, proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1
