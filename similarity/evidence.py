@@ -157,8 +157,10 @@ class Verdict(JsonRecord):
     text: str
 
 
-def verdict(question: Question, log_bf: float, log_bf_err: float, next_setup: str | None = None) -> Verdict:
-    """The plain-words answer to ``question`` from ln BF (general over special)."""
+def verdict(question: Question, log_bf: float, log_bf_err: float, next_setup: str | None = None,
+            filmed=()) -> Verdict:
+    """The plain-words answer to ``question`` from ln BF (general over special); ``filmed``: the setups already run
+    (a next setup among them is filmed again)."""
     grade = strength(log_bf)
     figure = f"log BF {log_bf:+.2f} ± {log_bf_err:.2f}"
     if abs(log_bf) >= RESOLVED:
@@ -166,7 +168,8 @@ def verdict(question: Question, log_bf: float, log_bf_err: float, next_setup: st
         text = f"{question.name}: resolved, {question.yes if holds else question.no} {ADVERBS[grade]} ({figure})"
     else:
         holds = None
-        film = f"film {next_setup} mm next (the design's next setup)" if next_setup else "film another setup"
+        again = "again" if next_setup in set(map(str, filmed)) else "next"
+        film = f"film {next_setup} mm {again} (the design's next setup)" if next_setup else "film another setup"
         text = f"{question.name}: not resolved by these setups ({figure}, {grade}); {film}"
     return Verdict(question=question.name, log_bf=float(log_bf), log_bf_err=float(log_bf_err), strength=grade,
                    resolved=abs(log_bf) >= RESOLVED, holds=holds, text=text)
@@ -192,8 +195,9 @@ class EvidenceSummary(JsonRecord):
         return max(self.probabilities, key=self.probabilities.get)
 
 
-def summarise(evidences, lo, hi, next_setup: str | None = None) -> EvidenceSummary:
-    """Probabilities and verdicts of the :class:`LawEvidence` s ``evidences`` (the questions whose two laws are there)."""
+def summarise(evidences, lo, hi, next_setup: str | None = None, filmed=()) -> EvidenceSummary:
+    """Probabilities and verdicts of the :class:`LawEvidence` s ``evidences`` (the questions whose two laws are there);
+    ``filmed``: the setups already run."""
     by = {e.law: e for e in evidences}
     log_z = np.array([e.log_z for e in evidences])
     p = np.exp(log_z - logsumexp(log_z))
@@ -201,7 +205,8 @@ def summarise(evidences, lo, hi, next_setup: str | None = None) -> EvidenceSumma
     for q in QUESTIONS:
         if q.general in by and q.special in by:
             g, s = by[q.general], by[q.special]
-            verdicts.append(verdict(q, g.log_z - s.log_z, float(np.hypot(g.log_z_err, s.log_z_err)), next_setup))
+            verdicts.append(verdict(q, g.log_z - s.log_z, float(np.hypot(g.log_z_err, s.log_z_err)), next_setup,
+                                    filmed))
     return EvidenceSummary(laws=list(evidences), probabilities={e.law: float(v) for e, v in zip(evidences, p)},
                            verdicts=verdicts, trust_region=[np.asarray(lo).tolist(), np.asarray(hi).tolist()])
 

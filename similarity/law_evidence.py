@@ -84,4 +84,4 @@ def evidence_of_report(folder, laws=LAW_NAMES) -> EvidenceSummary:
                          f"{','.join(law.name for law in laws)}`, which grows it")
     nxt = (summary.next_setup_information or {}).get("setup") or (
         summary.next_setups_eig[0]["setup"] if summary.next_setups_eig else None)
-    return summarise(evidences, lo, hi, next_setup=nxt)
+    return summarise(evidences, lo, hi, next_setup=nxt, filmed=summary.setups)

@@ -385,7 +385,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         ellipsoid_posterior=ell, ellipsoid_laplace=laplace, normals=normals, flow_band=band, eig_grid=eig_grid,
         next_setups_eig=next_eig, next_setup_perpendicular=next_perp, next_setup_information=next_info,
         evidence=summarise(evidences, lo, hi, next_setup=(next_info or {}).get("setup")
-                           or (next_eig[0]["setup"] if next_eig else None)) if evidences else None)
+                           or (next_eig[0]["setup"] if next_eig else None), filmed=run.setups) if evidences else None)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     np.save(run.folder / "posterior_log_prob.npy", post.log_prob)  # one log-posterior per sample
     # `virheo laws` fits the same emulator again from it

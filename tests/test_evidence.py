@@ -101,6 +101,9 @@ def test_verdict_wording_at_the_thresholds():
     assert not v.resolved and v.holds is None
     assert v.text == "yield stress: not resolved by these setups (log BF +2.30 ± 0.10, substantial); film 70x70 mm " \
                      "next (the design's next setup)"
+    # a next setup already filmed is filmed again
+    assert verdict(yield_stress, 0.4, 0.1, next_setup="70x70", filmed=["51x25", "70x70"]).text.endswith(
+        "film 70x70 mm again (the design's next setup)")
     assert verdict(QUESTIONS[1], -5.0, 0.3).text == "shear thinning: resolved, n = 1 decisively (log BF -5.00 ± 0.30)"
 
 
