@@ -238,8 +238,12 @@ def test_estimate_points_to_the_validated_design_command(capsys, tmp_path, folde
     import shlex
 
     assert main(["estimate", str(folder), "--out", str(tmp_path / "o"), "--preset", "demo", *FAST]) == 0
-    line = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("next setup: "))
+    lines = capsys.readouterr().out.splitlines()
+    line = next(ln for ln in lines if ln.startswith("next setup: "))
     assert "the paper's perpendicularity criterion, which proved weak" in line
+    # the laws' verdicts come from the report, and the last line says so with the command to run
+    assert "yield stress and shear thinning decided by the laws' evidence" in lines[-1]
+    assert lines[-1].endswith(f"virheo report {tmp_path / 'o'}")
     command = shlex.split(line.split("the validated choice: ")[1])
     assert command[:2] == ["virheo", "design"] and command[-2:] == ["--done", "30x20"]
     assert main(command[1:] + ["--workers", "0", "--json"]) == 0

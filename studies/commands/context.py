@@ -223,6 +223,11 @@ class Run:
         return (f"{total_simulations} simulations ({self.simulated} run now"
                 + (f", {rest} from the store" if rest else "") + f") in {self.wall_seconds:.0f} s")
 
+    def report_hint(self) -> str:
+        """The line that points from an estimate to what only ``virheo report`` computes."""
+        return (f"uncertainty (posterior, credible intervals, yield stress and shear thinning decided by the laws' "
+                f"evidence, next setup by information gain, HTML page): virheo report {self.out}")
+
 
 @contextmanager
 def open_run(args):

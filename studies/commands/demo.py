@@ -60,5 +60,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"E_rel = {result['e_rel']:.4f} (eq. 44) after setups {' + '.join(est.setups)} mm; "
           f"{run.cost_line(est.simulations)}")
     print(f"report: {run.out / 'result.json'}")
-    print(f"uncertainty (posterior, credible intervals, next setup by information gain, HTML page): virheo report {run.out}")
+    print(run.report_hint())
     return 0

@@ -92,5 +92,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"next setup: none proposed by the paper's perpendicularity criterion (note above); the simulator's "
               f"own criterion: {design}")
     print(f"report: {run.out / 'result.json'}")
-    print(f"uncertainty (posterior, credible intervals, next setup by information gain, HTML page): virheo report {run.out}")
+    print(run.report_hint())
     return 0
