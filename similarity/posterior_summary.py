@@ -119,6 +119,13 @@ class PosteriorSummary(JsonRecord):
         """Width of the 90 % flow-curve band at ``shear_rate`` [1/s] (:func:`similarity.flow_band.band_width`)."""
         return band_width(self.flow_band, shear_rate)
 
+    @property
+    def again(self) -> str:
+        """', a setup already filmed: film it again' when the simulated-information next setup is one of the setups
+        run, else ''."""
+        nxt = (self.next_setup_information or {}).get("setup")
+        return ", a setup already filmed: film it again" if nxt and nxt in self.setups else ""
+
 
 def read_posterior(folder) -> PosteriorSummary:
     """``folder/posterior.json`` written by :func:`similarity.posterior.analyse` (``virheo report``)."""

@@ -241,7 +241,7 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
         reliability += (f"<p>Setup of largest simulated information (the loss Hessians of 16 setups simulated at "
                         f"the posterior mean, {e(info['preset'])} preset's model"
                         f"{', each weighted by its own noise' if unit == 'nats' else ''}): "
-                        f"<b>{e(info['setup'])}</b> mm, {gain:.4f} {e(unit)}. {info_line}.</p>")
+                        f"<b>{e(info['setup'])}</b> mm{e(summary.again)}, {gain:.4f} {e(unit)}. {info_line}.</p>")
         if info.get("check"):
             c = info["check"]
             reliability += (f"<p>Calibration: the setups done carry {c['hessian_nats']:.2f} nats by their simulated "

@@ -96,9 +96,12 @@ def test_report_prints_the_simulated_next_setup(reported):
     assert re.search(r"emulator checked on 8 simulated posterior draws \(\d fits\): [+-]\d+\.\d\d nats optimistic, "
                      r"(trusted|NOT trusted)", proc.stdout)
     info = json.loads((run / "posterior.json").read_text())["next_setup_information"]
-    again = ", a setup already filmed: film it again" if info["setup"] in s.setups else ""
+    assert s.again == (", a setup already filmed: film it again" if info["setup"] in s.setups else "")
     assert (f"next setup by simulated information: {info['setup']} mm ({info['eig_nats']:.3f} nats; demo preset's "
-            f"model, each setup weighted by its own noise{again})") in proc.stdout
+            f"model, each setup weighted by its own noise{s.again})") in proc.stdout
+    import dataclasses
+    repeat = dataclasses.replace(s, next_setup_information={**info, "setup": s.setups[-1]})
+    assert repeat.again == ", a setup already filmed: film it again"
     assert f"{info['check']['posterior_nats']:.2f} nats in the posterior" in proc.stdout
     assert f"{info['top'][0]['volume_ml']:.0f} ml" in proc.stdout
     assert "Setup of largest simulated information" in (run / "report" / "index.html").read_text()

@@ -85,9 +85,8 @@ def run(args: argparse.Namespace) -> int:
 
         gain, unit = information_gain(info)
         weighted = ", each setup weighted by its own noise" if unit == "nats" else ""
-        again = ", a setup already filmed: film it again" if info["setup"] in summary.setups else ""
         print(f"next setup by simulated information: {info['setup']} mm ({gain:.3f} {unit}; {info['preset']} preset's "
-              f"model{weighted}{again})")
+              f"model{weighted}{summary.again})")
         if info.get("check"):
             c = info["check"]
             print(f"  calibration: the setups done carry {c['hessian_nats']:.2f} nats by their simulated Hessians, "
