@@ -13,6 +13,7 @@ Material: Japanese thickened Worcestershire sauce at Table 1 (0.55 Pa s^n, 0.81,
     python bench/bench_engine_speed.py --setups 30x20 --rounds 3         # Taichi at 70x70, 1.26:2: ~15 min a run
     python bench/bench_engine_speed.py --setups 70x70 --models 1.5:1 1.5:2
     python bench/bench_engine_speed.py --callgrind                       # instructions per particle-step instead
+    python bench/bench_engine_speed.py --native-only --setups 30x20 --models 2.5:2 --rounds 3   # native alone
 
 ``--callgrind`` runs a short simulation (30 x 20 mm, 2.5 mm cells, 2 particles per axis) of each engine under
 ``valgrind --tool=callgrind`` and prints instructions per particle-step: (Ir of a process that simulates - Ir of
@@ -76,12 +77,13 @@ def timing(a, material, setups, models) -> int:
     from mpm.params import Setup
 
     cam = Camera.default()
-    print(f"# taichi-cpu vs native, one thread each, 3D; material eta {material.eta:g} Pa s^n, n {material.n:g}, "
+    engines = ("native",) if a.native_only else ENGINES
+    print(f"# {' vs '.join(engines)}, one thread each, 3D; material eta {material.eta:g} Pa s^n, n {material.n:g}, "
           f"sigma_y {material.sigma_y:g} Pa, density {a.density:g} kg/m^3, depth 40 mm, sticking walls; "
           f"{a.rounds} round(s) per case, engines alternating")
     print(f"# measured: {how_measured()}", flush=True)
     w_setup, w_model = Setup.parse(WARM_UP[0]), parse_model(WARM_UP[1])
-    for engine in ENGINES:
+    for engine in engines:
         s = simulate_on(engine, material, w_setup, density=a.density, cell_mm=w_model.cell_mm, ppc=w_model.ppc)
         print(f"# warm-up {engine} ({w_setup} mm, {w_model.cell_mm:g} mm cells): {s.stats['wall_s']:.1f} s wall",
               flush=True)
@@ -90,10 +92,10 @@ def timing(a, material, setups, models) -> int:
     rows = []
     for setup in setups:
         for text, model in models:
-            rates = {e: [] for e in ENGINES}
+            rates = {e: [] for e in engines}
             last = {}
             for r in range(a.rounds):
-                for engine in (ENGINES if r % 2 == 0 else ENGINES[::-1]):
+                for engine in (engines if r % 2 == 0 else engines[::-1]):
                     sim = simulate_on(engine, material, setup, density=a.density, cell_mm=model.cell_mm,
                                       ppc=model.ppc, camera=cam)
                     rates[engine].append(rate(sim))
@@ -101,9 +103,14 @@ def timing(a, material, setups, models) -> int:
                     print(f"{str(setup):>6} {text:>7} {r + 1:5d} {engine:>10} {sim.stats['n_particles']:9d} "
                           f"{sim.stats['steps']:5d} {sim.stats['sim_s']:7.2f} {rate(sim):8.3f}  {load()}",
                           flush=True)
-            ag = Agreement.of(last["taichi-cpu"], last["native"])
             med = {e: float(np.median(v)) for e, v in rates.items()}
-            rows.append((setup, model, last, med, ag))
+            if a.native_only:
+                print(f"{str(setup):>6} {text:>7} median {med['native']:.3f} M particle-steps/s (native, isa "
+                      f"{last['native'].stats['isa']})", flush=True)
+                continue
+            rows.append((setup, model, last, med, Agreement.of(last["taichi-cpu"], last["native"])))
+    if a.native_only:
+        return 0
     print(f"\n| setup | cell mm, particles per axis | particles | steps taichi / native | taichi-cpu M p-steps/s | "
           f"native M p-steps/s | native / taichi | target | IoU min | max \\|Δ front\\| mm | verdict |")
     print("|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|")
@@ -173,7 +180,7 @@ def callgrind(a) -> int:
         return json.loads(lines[-1])
 
     rows = {}
-    for engine in ENGINES[::-1]:  # native first: it is quick
+    for engine in ("native",) if a.native_only else ENGINES[::-1]:  # native first: it is quick
         if engine == "taichi-cpu":  # compile Taichi's kernels for valgrind's CPU into the empty cache
             run(["--tool=none"], engine, "build")
         ir, info = {}, {}
@@ -189,6 +196,9 @@ def callgrind(a) -> int:
     print(f"\n| engine | instructions per particle-step |\n|---|---:|")
     for engine, v in rows.items():
         print(f"| {engine} | {v:,.0f} |")
+    if a.native_only:
+        shutil.rmtree(tmp, ignore_errors=True)
+        return 0
     print(f"\n# native executes {rows['taichi-cpu'] / rows['native']:.1f}x fewer instructions per particle-step than "
           f"taichi-cpu (its AVX2 path; Taichi compiled for valgrind's CPU)")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -208,6 +218,9 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=2, help="runs of each engine per case (alternating order)")
     ap.add_argument("--material", default=MATERIAL, help="ETA,N,SIGMA_Y (Pa s^n, -, Pa)")
     ap.add_argument("--density", type=float, default=DENSITY, help="kg/m^3")
+    ap.add_argument("--native-only", action="store_true",
+                    help="the native engine alone (its path: $VIRHEO_NATIVE_ISA or the CPU's best; avx2 under "
+                    "--callgrind); no ratio to taichi-cpu")
     ap.add_argument("--callgrind", action="store_true", help="instructions per particle-step under valgrind instead")
     ap.add_argument("--callgrind-child", nargs=2, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)

@@ -69,9 +69,9 @@ struct FlushDenormals {
 #pragma GCC push_options
 #pragma GCC target("avx2,fma,bmi2")
 #endif
-// 16-byte registers: values packed in 32-byte ones ran 1.8x slower on an AMD EPYC (docs/decisions.md)
+// 32-byte registers; the grid's stencil rows are read and written 16 bytes (one node) at a time (simd.h: row_add)
 #define VIRHEO_ISA isa_avx2
-#define VIRHEO_VEC_BYTES 16
+#define VIRHEO_VEC_BYTES 32
 #include "kernel.h"
 #undef VIRHEO_ISA
 #undef VIRHEO_VEC_BYTES

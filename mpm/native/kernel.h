@@ -400,13 +400,13 @@ struct Engine {
                 for (int a1 = 0; a1 < 3; a1++) {
                     V row = sb.w[1][a1][i] * X[a0] + sb.w[0][a0][i] * Z[a1];
                     float* q = gr + w.row[3 * a0 + a1];
-                    vstore(q, vload(q) + row);
+                    row_add(q, row);
                 }
         } else {
             for (int a0 = 0; a0 < 3; a0++) {
                 V row = sb.w[0][a0][i] * (U + (float)a0 * A[0]) + sb.dw[0][a0][i] * G[0];
                 float* q = gr + w.row[a0];
-                vstore(q, vload(q) + row);
+                row_add(q, row);
             }
         }
     }
@@ -573,7 +573,7 @@ struct Engine {
         if constexpr (D == 3) {
             V T1{}, T2{}, T3{};
             for (int a0 = 0; a0 < 3; a0++) {
-                V g0 = vload(gr + w.row[3 * a0]), g1 = vload(gr + w.row[3 * a0 + 1]), g2 = vload(gr + w.row[3 * a0 + 2]);
+                V g0 = row_load(gr + w.row[3 * a0]), g1 = row_load(gr + w.row[3 * a0 + 1]), g2 = row_load(gr + w.row[3 * a0 + 2]);
                 V S1 = wt[1][0] * g0 + wt[1][1] * g1 + wt[1][2] * g2;  // sum_a1 w1 v
                 V S2 = dw[1][0] * g0 + dw[1][1] * g1 + dw[1][2] * g2;  // sum_a1 dw1 v
                 T1 += wt[0][a0] * S1;
@@ -584,7 +584,7 @@ struct Engine {
         } else {
             V T1{}, T2{};
             for (int a0 = 0; a0 < 3; a0++) {
-                V g = vload(gr + w.row[a0]);
+                V g = row_load(gr + w.row[a0]);
                 T1 += wt[0][a0] * g;
                 T2 += dw[0][a0] * g;
             }

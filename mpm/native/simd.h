@@ -1,9 +1,11 @@
 // The 16-lane vector layer of the native engine: the value types V (float) and VI (int32), their loads, stores,
 // selects and rounding, exp, log and x^(-1/3) in float32, and the lane patterns of a stencil row. Everything that
 // differs between instruction sets below the transfers lives here (engine.cpp sets VIRHEO_VEC_BYTES, the register
-// width: 64 for AVX-512, 16 for AVX2, SSE2 and NEON); kernel.h includes it inside its instruction set's namespace.
+// width: 64 for AVX-512, 32 for AVX2, 16 for SSE2 and NEON); kernel.h includes it inside its instruction set's
+// namespace.
 
 constexpr int W = 16;  // lanes of a block
+typedef float V4 __attribute__((vector_size(16)));
 
 #define VH_INLINE static inline __attribute__((always_inline))
 
@@ -109,6 +111,40 @@ VH_INLINE V vload(const float* p) { V r; __builtin_memcpy(&r, p, sizeof(V)); ret
 VH_INLINE VI vloadi(const int* p) { VI r; __builtin_memcpy(&r, p, sizeof(VI)); return r; }
 VH_INLINE void vstore(float* p, V a) { __builtin_memcpy(p, &a, sizeof(V)); }
 VH_INLINE void vstorei(int* p, VI a) { __builtin_memcpy(p, &a, sizeof(VI)); }
+// A stencil row of the grid: nodes 0..2 of 4 floats each (a 4th node's lanes ride along in V). Below AVX-512 a
+// row is read and written node by node, 16 bytes each, and the 4th node is neither read (its lanes are 0) nor
+// written (P2G adds 0 there): a row that starts one node after the row last stored then reads what that store
+// wrote (store-to-load forwarding; a 32-byte access straddling two earlier stores waits for both to retire).
+#if VIRHEO_VEC_BYTES == 64
+VH_INLINE V row_load(const float* p) { return vload(p); }
+VH_INLINE void row_add(float* p, V row) { vstore(p, vload(p) + row); }
+#else
+VH_INLINE V4 node_load(const float* p) { V4 r; __builtin_memcpy(&r, p, 16); return r; }
+VH_INLINE void node_store(float* p, V4 a) { __builtin_memcpy(p, &a, 16); }
+#if VIRHEO_VEC_BYTES == 32
+VH_INLINE V row_load(const float* p) {
+    V r;
+    r.r[0] = __builtin_shufflevector(node_load(p), node_load(p + 4), 0, 1, 2, 3, 4, 5, 6, 7);
+    r.r[1] = __builtin_shufflevector(node_load(p + 8), V4{}, 0, 1, 2, 3, 4, 5, 6, 7);
+    return r;
+}
+VH_INLINE void row_add(float* p, const V& row) {
+    node_store(p, node_load(p) + __builtin_shufflevector(row.r[0], row.r[0], 0, 1, 2, 3));
+    node_store(p + 4, node_load(p + 4) + __builtin_shufflevector(row.r[0], row.r[0], 4, 5, 6, 7));
+    node_store(p + 8, node_load(p + 8) + __builtin_shufflevector(row.r[1], row.r[1], 0, 1, 2, 3));
+}
+#else
+VH_INLINE V row_load(const float* p) {
+    V r;
+    for (int k = 0; k < 3; k++) r.r[k] = node_load(p + 4 * k);
+    r.r[3] = NF{};
+    return r;
+}
+VH_INLINE void row_add(float* p, const V& row) {
+    for (int k = 0; k < 3; k++) node_store(p + 4 * k, node_load(p + 4 * k) + row.r[k]);
+}
+#endif
+#endif
 VH_INLINE V splat(float a) { return V{} + a; }
 VH_INLINE VI splati(int a) { return VI{} + a; }
 #if VIRHEO_VEC_BYTES == 64
@@ -122,11 +158,21 @@ VH_INLINE VI seli(VI m, VI a, VI b) { return (a & m) | (b & ~m); }
 VH_INLINE V vabs(V a) { return asf(asi(a) & 0x7fffffff); }
 VH_INLINE V vmin(V a, V b) { return sel(a < b, a, b); }
 VH_INLINE V vmax(V a, V b) { return sel(a > b, a, b); }
+#if VIRHEO_VEC_BYTES == 64
 VH_INLINE bool any(VI m) {
     int r = 0;
     for (int i = 0; i < W; i++) r |= m[i];
     return r != 0;
 }
+#else
+VH_INLINE bool any(const VI& m) {  // the registers OR-ed first: NL lane reads instead of W
+    NI x = m.r[0];
+    for (int k = 1; k < K; k++) x |= m.r[k];
+    int r = 0;
+    for (int i = 0; i < NL; i++) r |= x[i];
+    return r != 0;
+}
+#endif
 #if VIRHEO_VEC_BYTES == 64
 VH_INLINE V vfloor(V a) { return (V)_mm512_roundscale_ps((__m512)a, _MM_FROUND_TO_NEG_INF | _MM_FROUND_NO_EXC); }
 VH_INLINE VI vfloor_i(V a) { return to_int(vfloor(a)); }  // floor as int32, |a| < 2^31
@@ -198,7 +244,6 @@ static const int IOTA_[W] = {0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 1
 #define NODE1 vload(NODE_[1])
 #define NODE2 vload(NODE_[2])
 #define COMP(c) vload(COMP_[c])
-typedef float V4 __attribute__((vector_size(16)));
 // (sum_k a[4k + c])_c, c = 0..3: the three nodes of a stencil row added, in registers
 #if VIRHEO_VEC_BYTES == 64
 VH_INLINE V4 node_sum(V a) {

@@ -1,6 +1,6 @@
 // The transfers' instruction-set layer: how one particle's stencil-row operands are formed (P2G) and its row sums
 // handed back (G2P). With AVX-512 a particle's operands and results pass through 4-float rows per lane, which
-// 512-bit permutes turn into 16-lane fields and back once per block; on the 16-byte paths (AVX2, SSE2, NEON) they
+// 512-bit permutes turn into 16-lane fields and back once per block; on the narrower paths (AVX2, SSE2, NEON) they
 // are read and written lane by lane. kernel.h's P2G and G2P call only what is below; nothing else there depends on
 // the instruction set. Included by kernel.h inside its instruction set's namespace, after ugimp.
 
@@ -28,7 +28,7 @@ struct GatherBlock {
 // row_terms gives the operands of lane i's stencil rows in P2G: the weights along the last axis L on nodes 0..2
 // (Wk), k times them (KWk) and their derivatives (DWk); the momentum with the mass (CU), the columns of m C (Qb) and
 // S (Rb) along L on every node; per leading axis a, Wk times the columns a of m C (A[a]) and of S (G[a]). (Out
-// parameters, not a returned struct: a struct of twelve 64-byte values stays in memory on the 16-byte paths.)
+// parameters, not a returned struct: a struct of twelve 64-byte values stays in memory on the narrower paths.)
 
 #if VIRHEO_VEC_BYTES == 64
 // 16 rows of 4 floats (lane i's row at in[i]) -> 4 fields of 16 lanes (component c in comp[c])
@@ -135,7 +135,7 @@ VH_INLINE void gather_finish(GatherBlock<D>& blk, int cnt, float inv_dx) {
     }
 }
 
-#else  // 16-byte registers: lane by lane
+#else  // narrower registers: lane by lane
 template <int D>
 VH_INLINE void weight_rows(ScatterBlock<D>&, const V*, const V*) {}
 
