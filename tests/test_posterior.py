@@ -220,6 +220,25 @@ def test_gaussian_check_helper_is_truncated_to_the_box():
     assert post.samples.min() >= 0.0 and post.mean[0] > 0.02  # truncation at 0 pushes the mean up
 
 
+def test_sampler_matches_closed_form_moments_of_a_valley_cut_by_the_box():
+    """A posterior like a report's: a thin valley (standard deviations 20:1 along and across it) whose axis the box
+    face x_0 = 0 cuts near its mean.  The samples' moments are checked against those of the truncated Gaussian sampled
+    directly (rejection, 10^6 draws)."""
+    mean = np.array([0.05, 0.3, 0.5])
+    axis = np.array([1.0, 2.0, 0.5]) / np.linalg.norm([1.0, 2.0, 0.5])
+    other = np.linalg.qr(np.column_stack([axis, np.eye(3)[:, :2]]))[0][:, 1:]
+    basis = np.column_stack([axis, other])
+    cov = basis @ np.diag([0.1, 0.005, 0.005]) ** 2 @ basis.T
+    rng = np.random.default_rng(11)
+    ref = rng.multivariate_normal(mean, cov, 1_000_000)
+    ref = ref[np.all((ref >= 0) & (ref <= 1), axis=1)]
+    post = gaussian_moments_check(mean, cov, nwalkers=32, seed=2, min_ess=2000)
+    assert post.converged and post.ess >= 2000
+    sd = np.sqrt(np.diag(ref.T @ ref / len(ref) - np.outer(ref.mean(0), ref.mean(0))))
+    assert np.all(np.abs(post.mean - ref.mean(0)) < 5 * sd / np.sqrt(post.ess))
+    assert np.allclose(np.sqrt(np.diag(post.cov)), sd, rtol=0.1)
+
+
 def test_posterior_simulates_at_the_estimates_final_discretisation():
     """A coarse-to-fine run's posterior (emulator jobs, store archive, delta_disc) is built at the discretisation
     of its reported loss, the preset's finishing one, not at the coarse search model."""
