@@ -5,7 +5,8 @@ resumes where it stopped; walkers start in a small ball around a given point.  T
 evolution (``emcee.moves.DEMove``): on the reports' posteriors, elongated along the similarity valley and cut
 by the box, its autocorrelation time is about 2.5x shorter than the default stretch move's
 (bench/bench_mcmc.py).  Convergence: chains longer than 50 integrated autocorrelation times tau, with tau
-within 5 % of the tau of the chain one chunk shorter; effective sample size ESS = walkers x (steps - burn-in) / max(tau), burn-in = 2 max(tau).
+within 5 % of the tau of the chain one chunk shorter; effective sample size
+ESS = walkers x (steps - burn-in) / max(tau), burn-in = 2 max(tau).
 """
 from __future__ import annotations
 
