@@ -2,7 +2,8 @@
 
     python bench/bench_silhouette.py            # synthetic particle clouds + shared data when present
 
-Prints (1) wall time of render_frames for 8 frames of 250-400k particles (250: a 5 mm model), (2) time to
+Prints (1) wall time of render_frames for 8 frames of 250-400k particles (250: a 5 mm model), with the native
+extension's splat where it is built and with the numpy one, (2) time to
 load an experiment folder (8 PNGs at 1920x1080 -> masks at 960x540), (3) per shared experiment the IoU of the
 projected initial cuboid with frame 1, as stated and with W and H swapped. Numbers go to docs/performance.md.
 """
@@ -16,7 +17,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from mpm import experiment  # noqa: E402
+from mpm import experiment, native_engine  # noqa: E402
 from mpm.camera import Camera  # noqa: E402
 from mpm.datasets import data_dir  # noqa: E402
 from mpm.silhouette import render_frames  # noqa: E402
@@ -43,16 +44,26 @@ def best_of(fn, repeats=3) -> float:
     return min(times)
 
 
+_available = native_engine.available
+
+
 def main() -> None:
     cam = Camera.default()
     print(f"# measured: {how_measured()}", flush=True)
     print("render_frames: 8 frames at 960x540 (best of 3; the machine is shared, numbers are noisy)")
-    print(f"{'particles':>10} {'spacing mm':>10} {'total s':>8} {'per frame ms':>12}")
+    native = native_engine.available()
+    print(f"native splat: {'built' if native else 'not available (' + native_engine.why_unavailable() + ')'}")
+    print(f"{'particles':>10} {'spacing mm':>10} {'total s':>8} {'per frame ms':>12} {'numpy splat, per frame ms':>26}")
     for n in (250, 2_000, 20_000, 50_000, 100_000, 200_000, 400_000):
         p, s = cloud(n)
         frames = [p + np.array([0.0005 * k, 0, 0]) for k in range(8)]
         t = best_of(lambda: render_frames(frames, cam, spacing_m=s))
-        print(f"{len(p):>10} {1e3 * s:>10.2f} {t:>8.3f} {1e3 * t / 8:>12.1f}")
+        native_engine.available = lambda: False
+        try:
+            t_numpy = best_of(lambda: render_frames(frames, cam, spacing_m=s))
+        finally:
+            native_engine.available = _available
+        print(f"{len(p):>10} {1e3 * s:>10.2f} {t:>8.3f} {1e3 * t / 8:>12.1f} {1e3 * t_numpy / 8:>26.1f}")
 
     if data_dir() is None:
         print("shared data absent: skipping the footage part")

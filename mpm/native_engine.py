@@ -27,7 +27,7 @@ except ImportError as exc:  # not built: no compiler at install time
     _IMPORT_ERROR = exc
 
 _SAID = {"isa": False}
-INTERFACE = 3  # the calling convention this module speaks (engine.cpp's INTERFACE): a build that differs is stale
+INTERFACE = 4  # the calling convention this module speaks (engine.cpp's INTERFACE): a build that differs is stale
 
 
 def available() -> bool:

@@ -16,6 +16,7 @@ from scipy.spatial import ConvexHull, QhullError
 from skimage.draw import polygon as fill_polygon
 from skimage.morphology import disk
 
+from mpm import native_engine
 from mpm.camera import Camera, image_size_of
 from mpm.params import WORKING_SIZE
 
@@ -121,6 +122,56 @@ def _morph(mask: np.ndarray, footprint: np.ndarray, erode: bool) -> np.ndarray:
     return out
 
 
+def _splat(crop, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
+    """The particles' disks set in ``crop`` (bool): particle i in pixel (cx, cy) of the crop, at ``frac`` inside it,
+    covers the pixels of :func:`_disk_offsets` ``(r_max)`` whose centres lie within sqrt(r2) of it (float32).  The
+    pixels every particle covers wherever it sits inside its own pixel (the ``sure`` footprint of
+    :func:`_sure_offsets`, or None) are stamped at once by a dilation; then only particles near the edge of that
+    coverage can add pixels, so the deep-interior ones are skipped."""
+    ch, cw = crop.shape
+    dx, dy = _disk_offsets(r_max)
+    if sure is not None:
+        in_crop = (cx >= 0) & (cx < cw) & (cy >= 0) & (cy < ch)
+        k = int(math.ceil(r_max + 0.5))
+        crop[cy[in_crop], cx[in_crop]] = True
+        crop = _morph(crop, sure, erode=False)
+        interior = ndimage.minimum_filter(crop, size=2 * k + 1, mode="constant", cval=False)
+        edge = ~(in_crop & interior[np.clip(cy, 0, ch - 1), np.clip(cx, 0, cw - 1)])
+        cx, cy, frac, r2 = cx[edge], cy[edge], frac[edge], r2[edge]
+    ox = dx.astype(np.float32) + 0.5
+    oy = dy.astype(np.float32) + 0.5
+    r2 = r2[:, None]
+    chunk = max(1, 4_000_000 // max(len(dx), 1))
+    for s in range(0, len(cx), chunk):
+        fx, fy = frac[s:s + chunk, 0:1], frac[s:s + chunk, 1:2]
+        hit = (ox[None, :] - fx) ** 2 + (oy[None, :] - fy) ** 2 <= r2[s:s + chunk]
+        px = (cx[s:s + chunk, None] + dx[None, :])[hit]
+        py = (cy[s:s + chunk, None] + dy[None, :])[hit]
+        good = (px >= 0) & (px < cw) & (py >= 0) & (py < ch)
+        crop[py[good], px[good]] = True
+    return crop
+
+
+def _splat_native(crop, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
+    """:func:`_splat` by the native extension (``mpm._native.splat``): the same pixels (float32 arithmetic in the same
+    order), every particle's disk set beside the sure footprint, none skipped (a skipped one covers only pixels
+    already set)."""
+    from mpm.native_engine import _native
+
+    ch, cw = crop.shape
+    dx, dy = _disk_offsets(r_max)
+    out = np.ascontiguousarray(crop, dtype=np.uint8)
+    if sure is None:
+        sdx = sdy = np.zeros(0, np.int64)
+    else:
+        ys, xs = np.nonzero(sure)
+        sdy, sdx = (ys - sure.shape[0] // 2).astype(np.int64), (xs - sure.shape[1] // 2).astype(np.int64)
+    _native.splat(np.ascontiguousarray(cx, np.int64), np.ascontiguousarray(cy, np.int64),
+                  np.ascontiguousarray(frac, np.float32), np.ascontiguousarray(r2, np.float32),
+                  np.ascontiguousarray(dx, np.int64), np.ascontiguousarray(dy, np.int64), sdx, sdy, out, ch, cw)
+    return out.view(bool)
+
+
 def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float | None = None, *,
            spacing_m: float | None = None, closing_px: int | None = None) -> np.ndarray:
     """Silhouette (height, width) bool of particles at ``positions_m`` (N, 3), metres, reference frame.
@@ -169,32 +220,8 @@ def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float
     frac = (uv - cells).astype(np.float32)
     crop = np.zeros((ch, cw), dtype=bool)
 
-    # pixels that every particle covers wherever it sits inside its own pixel (the "sure" footprint)
-    # are stamped at once by a dilation; then only particles near the edge of that coverage can add
-    # pixels, so the deep-interior ones are skipped
-    in_crop = (cx >= 0) & (cx < cw) & (cy >= 0) & (cy < ch)
-    k = int(math.ceil(r_max + 0.5))
-    sure = _sure_offsets(float(r_px.min()))
-    if sure is not None:
-        crop[cy[in_crop], cx[in_crop]] = True
-        crop = _morph(crop, sure, erode=False)
-        interior = ndimage.minimum_filter(crop, size=2 * k + 1, mode="constant", cval=False)
-        edge = ~(in_crop & interior[np.clip(cy, 0, ch - 1), np.clip(cx, 0, cw - 1)])
-        cx, cy, frac, r_px = cx[edge], cy[edge], frac[edge], r_px[edge]
-
-    dx, dy = _disk_offsets(r_max)
-    ox = dx.astype(np.float32) + 0.5
-    oy = dy.astype(np.float32) + 0.5
-    r2 = (r_px.astype(np.float32) ** 2)[:, None]
-    chunk = max(1, 4_000_000 // max(len(dx), 1))
-    for s in range(0, len(cx), chunk):
-        fx, fy = frac[s:s + chunk, 0:1], frac[s:s + chunk, 1:2]
-        hit = (ox[None, :] - fx) ** 2 + (oy[None, :] - fy) ** 2 <= r2[s:s + chunk]
-        px = (cx[s:s + chunk, None] + dx[None, :])[hit]
-        py = (cy[s:s + chunk, None] + dy[None, :])[hit]
-        good = (px >= 0) & (px < cw) & (py >= 0) & (py < ch)
-        crop[py[good], px[good]] = True
-
+    splat = _splat_native if native_engine.available() else _splat
+    crop = splat(crop, cx, cy, frac, r_px.astype(np.float32) ** 2, r_max, _sure_offsets(float(r_px.min())))
     if closing_px and closing_px > 0:
         closing = disk(int(closing_px))
         crop = _morph(_morph(crop, closing, erode=False), closing, erode=True)  # binary closing, border False

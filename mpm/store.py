@@ -15,7 +15,7 @@ Video losses against an experiment are cached per (request key, experiment id) i
 CMA-ES checkpoints (any picklable object) live in ``checkpoints/<run_id>.pkl`` with the previous
 one kept as ``<run_id>.prev.pkl``.
 
-Crash safety: every file is written by :func:`mpm.files.atomic_write` (temp file, fsync, rename) *before*
+Crash safety: every file is written by :func:`mpm.files.atomic_write` (temp file, rename) *before*
 its index row is committed (one SQLite transaction, WAL journal), so a kill at any moment leaves
 complete files only.  Damage from outside (a full disk, an interrupted copy) is healed on open:
 a damaged index is moved aside and rebuilt from the array files, an unreadable array is

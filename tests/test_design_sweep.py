@@ -4,12 +4,8 @@ the estimator's proposal never raises.  Then the whole estimate loop (Algorithm 
 forward model at every corner and face of the material space and every setup corner: every run ends with an
 estimate, a skipped proposal with one line saying why."""
 import logging
-import os
-import tempfile
 from dataclasses import replace
 import warnings
-
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -184,16 +180,6 @@ def test_information_criterion_scores_candidates_alone_when_nothing_moves_in_the
 SIM = "fake_forward:simulate"
 
 
-@pytest.fixture
-def memory_dir(tmp_path):
-    """A folder in memory where the system has one (the store's fsyncs cost most of this loop on a disk)."""
-    shm = Path("/dev/shm")
-    if not (shm.is_dir() and os.access(shm, os.W_OK)):
-        yield tmp_path
-        return
-    with tempfile.TemporaryDirectory(dir=shm) as d:
-        yield Path(d)
-
 SIZE = (64, 36)
 CORNERS = [Material.from_array(denormalize(x)) for x in LATTICE if np.count_nonzero(x == 0.5) == 0]
 FACES = [Material.from_array(denormalize(x)) for x in LATTICE if np.count_nonzero(x == 0.5) == 2]
@@ -202,12 +188,12 @@ DEMO = E.get_preset("demo")
 SETUP_CORNERS = SETUPS[:4]
 
 
-def test_estimate_loop_ends_with_an_estimate_at_every_corner_and_face(memory_dir):
+def test_estimate_loop_ends_with_an_estimate_at_every_corner_and_face(tmp_path):
     """Every stage is followed by its proposal.  The corners run the footage preset (log(eta) stages and a finishing
     stage), the face centres the demo preset; stage 1 starts at the truth, so that the runny yield-stress corners
     reach estimates without plane-Poiseuille flow in the setup done."""
     skipped = proposed = 0
-    with Forward(memory_dir / "store", workers=0, simulator=SIM) as forward:
+    with Forward(tmp_path / "store", workers=0, simulator=SIM) as forward:
         for truth, preset in [(m, FOOTAGE) for m in CORNERS] + [(m, DEMO) for m in FACES]:
             for first in SETUP_CORNERS:
                 def acquire(setup):

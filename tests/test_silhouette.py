@@ -4,6 +4,7 @@ import pytest
 from scipy import ndimage
 from skimage.morphology import disk
 
+from mpm import native_engine
 from mpm.camera import Camera
 from mpm.loss import iou
 from mpm.silhouette import (REFERENCE_RADIUS_M, REFERENCE_SPACING_M, _morph, _sure_offsets, box_corners,
@@ -142,3 +143,22 @@ def test_particles_beyond_the_image_edge():
     got = render(pts, cam, (320, 180), radius_m=0.8e-3, closing_px=0)
     assert got[0].any() and got[-1].any() and got[:, 0].any() and got[:, -1].any()
     assert np.array_equal(got, brute_force(pts, cam, 0.8e-3, (320, 180)))
+
+
+@pytest.mark.skipif(not native_engine.available(), reason=native_engine.why_unavailable() or "native engine absent")
+@pytest.mark.parametrize("seed", range(6))
+def test_native_splat_sets_the_same_pixels_as_numpy(seed, monkeypatch):
+    """The native extension's splat against the numpy one, pixel for pixel: dense lattices (most particles deep inside),
+    sparse clouds, radii from under a pixel to tens of pixels, particles beyond the image's edges."""
+    rng = np.random.default_rng(seed)
+    cam = Camera(eyepos_m=(0.015, 0.01, 0.03), quat=(1.0, 0.0, 0.0, 0.0)) if seed % 3 == 2 else CAM
+    spacing = rng.uniform(0.5e-3, 5e-3)
+    pts = cuboid(0.06, 0.03, 0.04, spacing, jitter=rng.uniform(0, 0.5), seed=seed)
+    if seed % 2:
+        pts = pts[rng.random(len(pts)) < 0.2]
+    cases = [dict(spacing_m=spacing), dict(radius_m=rng.uniform(0.05e-3, 4e-3), closing_px=0)]
+    native = [render(pts, cam, (480, 270), **kw) for kw in cases]
+    monkeypatch.setattr(native_engine, "available", lambda: False)
+    for got, kw in zip(native, cases):
+        assert np.array_equal(got, render(pts, cam, (480, 270), **kw))
+        assert got.any()

@@ -308,6 +308,107 @@ PyObject* py_return_mapping(PyObject*, PyObject* args) {
     Py_RETURN_NONE;
 }
 
+// Runs of an offset list whose rows (equal dy, dy ascending) hold consecutive dx, ascending: each row is
+// [first, last) of the list.  The disk footprints of mpm/silhouette.py are such lists.
+struct OffsetRow {
+    int64_t dy;
+    Py_ssize_t first, last;
+};
+
+std::vector<OffsetRow> offset_rows(const int64_t* dy, Py_ssize_t count) {
+    std::vector<OffsetRow> rows;
+    for (Py_ssize_t j = 0; j < count; j++)
+        if (rows.empty() || rows.back().dy != dy[j])
+            rows.push_back({dy[j], j, j + 1});
+        else
+            rows.back().last = j + 1;
+    return rows;
+}
+
+// splat(cx, cy, frac, r2, dx, dy, sure_dx, sure_dy, crop, rows, cols): the particles' disks of a silhouette
+// (mpm/silhouette.py, render) set in `crop` (uint8, rows x cols, row-major).  Particle i sits in pixel (cx[i], cy[i])
+// of the crop at (frac[2i], frac[2i+1]) inside it.  Where that pixel lies in the crop, its "sure" offsets are set;
+// and every offset (dx, dy) whose pixel centre lies within sqrt(r2[i]) of it, tested in float32 as the numpy path
+// tests it, (dx + 0.5 - fx)^2 + (dy + 0.5 - fy)^2 <= r2 (built for the baseline target, where C++17 does not contract
+// to fused multiply-adds), so both paths set the same pixels.  Along a row of offsets the test's left side falls,
+// then rises (float rounding is monotone), so the offsets that pass are one run: found from its two ends and set
+// at once.
+PyObject* py_splat(PyObject*, PyObject* args) {
+    PyObject *o_cx, *o_cy, *o_frac, *o_r2, *o_dx, *o_dy, *o_sx, *o_sy, *o_crop;
+    Py_ssize_t rows, cols;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOnn", &o_cx, &o_cy, &o_frac, &o_r2, &o_dx, &o_dy, &o_sx, &o_sy, &o_crop, &rows,
+                          &cols))
+        return nullptr;
+    Buffer cx, cy, frac, r2, dx, dy, sx, sy, crop;
+    if (!get_buffer(o_cx, cx, 8, 0, false, "cx") || !get_buffer(o_dx, dx, 8, 0, false, "dx") ||
+        !get_buffer(o_sx, sx, 8, 0, false, "sure_dx"))
+        return nullptr;
+    const Py_ssize_t n = cx.view.len / 8, m = dx.view.len / 8, s = sx.view.len / 8;
+    if (!get_buffer(o_cy, cy, 8, n, false, "cy") || !get_buffer(o_frac, frac, 4, 2 * n, false, "frac") ||
+        !get_buffer(o_r2, r2, 4, n, false, "r2") || !get_buffer(o_dy, dy, 8, m, false, "dy") ||
+        !get_buffer(o_sy, sy, 8, s, false, "sure_dy") || !get_buffer(o_crop, crop, 1, rows * cols, true, "crop"))
+        return nullptr;
+    const auto* pcx = static_cast<const int64_t*>(cx.view.buf);
+    const auto* pcy = static_cast<const int64_t*>(cy.view.buf);
+    const auto* pf = static_cast<const float*>(frac.view.buf);
+    const auto* pr2 = static_cast<const float*>(r2.view.buf);
+    const auto* pdx = static_cast<const int64_t*>(dx.view.buf);
+    const auto* psx = static_cast<const int64_t*>(sx.view.buf);
+    auto* out = static_cast<unsigned char*>(crop.view.buf);
+    const std::vector<OffsetRow> disk = offset_rows(static_cast<const int64_t*>(dy.view.buf), m);
+    const std::vector<OffsetRow> sure = offset_rows(static_cast<const int64_t*>(sy.view.buf), s);
+    Py_BEGIN_ALLOW_THREADS
+    std::vector<float> ox(m);
+    for (Py_ssize_t j = 0; j < m; j++) ox[j] = (float)pdx[j] + 0.5f;
+    auto set_run = [&](int64_t y, int64_t x0, int64_t x1) {  // pixels x0..x1 of row y, inside the crop
+        if (y < 0 || y >= rows) return;
+        x0 = std::max<int64_t>(x0, 0);
+        x1 = std::min<int64_t>(x1, cols - 1);
+        if (x0 <= x1) std::memset(out + y * cols + x0, 1, (size_t)(x1 - x0 + 1));
+    };
+    // the sure footprints first: most disks then fall on pixels already set, and their rows need no test
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const int64_t x = pcx[i], y = pcy[i];
+        if (x >= 0 && x < cols && y >= 0 && y < rows)
+            for (const OffsetRow& r : sure) set_run(y + r.dy, x + psx[r.first], x + psx[r.last - 1]);
+    }
+    // pixels set per row up to each column, after the sure footprints (a row found not all set is tested, so counts
+    // that miss the disks set since cost time, not pixels)
+    std::vector<int32_t> before((size_t)rows * (size_t)(cols + 1));
+    for (Py_ssize_t y = 0; y < rows; y++) {
+        int32_t* c = before.data() + y * (cols + 1);
+        c[0] = 0;
+        for (Py_ssize_t x = 0; x < cols; x++) c[x + 1] = c[x] + out[y * cols + x];
+    }
+    auto all_set = [&](int64_t y, int64_t x0, int64_t x1) {  // every pixel x0..x1 of row y set, or outside the crop
+        if (y < 0 || y >= rows) return true;
+        x0 = std::max<int64_t>(x0, 0);
+        x1 = std::min<int64_t>(x1, cols - 1);
+        if (x0 > x1) return true;
+        const int32_t* c = before.data() + y * (cols + 1);
+        return c[x1 + 1] - c[x0] == x1 - x0 + 1;
+    };
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const int64_t x = pcx[i], y = pcy[i];
+        const float fx = pf[2 * i], fy = pf[2 * i + 1], rr = pr2[i];
+        for (const OffsetRow& r : disk) {
+            if (all_set(y + r.dy, x + pdx[r.first], x + pdx[r.last - 1])) continue;
+            const float b = ((float)r.dy + 0.5f) - fy, b2 = b * b;
+            auto pass = [&](Py_ssize_t j) {
+                const float a = ox[j] - fx, a2 = a * a;
+                return a2 + b2 <= rr;
+            };
+            Py_ssize_t lo = r.first, hi = r.last - 1;
+            while (lo <= hi && !pass(lo)) lo++;
+            if (lo > hi) continue;
+            while (!pass(hi)) hi--;
+            set_run(y + r.dy, x + pdx[lo], x + pdx[hi]);
+        }
+    }
+    Py_END_ALLOW_THREADS
+    Py_RETURN_NONE;
+}
+
 PyObject* py_isas(PyObject*, PyObject*) {
     auto isas = supported_isas();
     PyObject* list = PyList_New((Py_ssize_t)isas.size());
@@ -334,6 +435,7 @@ PyMethodDef methods[] = {
     {"simulate", py_simulate, METH_VARARGS, "Run a whole dam-break simulation (see mpm/native_engine.py)."},
     {"return_mapping", py_return_mapping, METH_VARARGS, "The return mapping of eq. 57 over a batch."},
     {"isas", py_isas, METH_NOARGS, "Instruction-set paths this CPU runs, best first."},
+    {"splat", py_splat, METH_VARARGS, "The particles' disks of a silhouette (see mpm/silhouette.py)."},
     {"compiled", py_compiled, METH_NOARGS, "Instruction-set paths compiled into this build."},
     {"substeps", py_substeps, METH_VARARGS,
      "(steps, dt) of the time-step schedule from t to t_target (dx rounded to float, as the engine holds it)."},
@@ -343,8 +445,8 @@ PyModuleDef module = {PyModuleDef_HEAD_INIT, "_native", "Native CPU engine of th
 
 }  // namespace
 
-// the calling convention of simulate, return_mapping and substeps: mpm.native_engine.INTERFACE must match, else the build is stale
-constexpr long INTERFACE = 3;
+// the calling convention of simulate, return_mapping, substeps and splat: mpm.native_engine.INTERFACE must match, else the build is stale
+constexpr long INTERFACE = 4;
 
 PyMODINIT_FUNC PyInit__native(void) {
     PyObject* m = PyModule_Create(&module);
