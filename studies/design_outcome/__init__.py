@@ -212,11 +212,19 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
     film = filming(preset, footage_model, "outcome-footage")
     shots: dict = {}
 
+    def film_all(setups) -> None:
+        """Footage of every setup not filmed yet, in one batch: the workers share the footage model's long runs."""
+        todo = list({str(s): s for s in setups if str(s) not in shots}.values())
+        if todo:
+            shots.update((str(s), e) for s, e in zip(todo, emulate(case.truth, todo, density=DENSITY, preset=film,
+                                                                        forward=forward)))
+
     def footage(setup: Setup):
-        if str(setup) not in shots:
-            shots[str(setup)] = emulate(case.truth, [setup], density=DENSITY, preset=film, forward=forward)[0]
+        film_all([setup])
         return shots[str(setup)]
 
+    randoms = random_setups(config["seed"], case.index, case.first)
+    film_all([case.first, LARGEST, *randoms])  # the setups known before stage 1
     first = footage(case.first)
     g1 = config["stage_1_generations"]
     seed = int(case.seed_index)
@@ -227,7 +235,6 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
     def cpu_at(setup: Setup) -> float:
         return _cpu(forward.results(m1, [footage(setup)], preset.search)[0])
 
-    randoms = random_setups(config["seed"], case.index, case.first)
     picks: list[tuple[str, Setup, str | None, float]] = []  # arm, setup, fallback, criterion CPU s
     for arm in ARMS:
         fallback, cost = None, 0.0
@@ -253,6 +260,7 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
             setup, fallback = randoms[0], str(exc).splitlines()[0]
         picks.append((arm, Setup(setup.width_mm, setup.height_mm), fallback, cost))
 
+    film_all([setup for _, setup, _, _ in picks])
     t_first = cpu_at(case.first)
     runs = []
     for arm, setup, fallback, cost in picks:
