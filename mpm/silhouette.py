@@ -122,13 +122,14 @@ def _morph(mask: np.ndarray, footprint: np.ndarray, erode: bool) -> np.ndarray:
     return out
 
 
-def _splat(crop, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
-    """The particles' disks set in ``crop`` (bool): particle i in pixel (cx, cy) of the crop, at ``frac`` inside it,
-    covers the pixels of :func:`_disk_offsets` ``(r_max)`` whose centres lie within sqrt(r2) of it (float32).  The
+def _splat(shape, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
+    """The particles' disks in a crop (bool, ``shape``): particle i in pixel (cx, cy) of the crop, at ``frac`` inside
+    it, covers the pixels of :func:`_disk_offsets` ``(r_max)`` whose centres lie within sqrt(r2) of it (float32).  The
     pixels every particle covers wherever it sits inside its own pixel (the ``sure`` footprint of
     :func:`_sure_offsets`, or None) are stamped at once by a dilation; then only particles near the edge of that
     coverage can add pixels, so the deep-interior ones are skipped."""
-    ch, cw = crop.shape
+    ch, cw = shape
+    crop = np.zeros(shape, dtype=bool)
     dx, dy = _disk_offsets(r_max)
     if sure is not None:
         in_crop = (cx >= 0) & (cx < cw) & (cy >= 0) & (cy < ch)
@@ -152,15 +153,15 @@ def _splat(crop, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
     return crop
 
 
-def _splat_native(crop, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
+def _splat_native(shape, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
     """:func:`_splat` by the native extension (``mpm._native.splat``): the same pixels (float32 arithmetic in the same
     order), every particle's disk set beside the sure footprint, none skipped (a skipped one covers only pixels
     already set)."""
     from mpm.native_engine import _native
 
-    ch, cw = crop.shape
+    ch, cw = shape
     dx, dy = _disk_offsets(r_max)
-    out = np.ascontiguousarray(crop, dtype=np.uint8)
+    out = np.zeros(shape, dtype=np.uint8)
     if sure is None:
         sdx = sdy = np.zeros(0, np.int64)
     else:
@@ -218,10 +219,8 @@ def render(positions_m, camera: Camera, image_size=WORKING_SIZE, radius_m: float
     cw, ch = x1 - x0, y1 - y0
     cx, cy = cells[:, 0] - x0, cells[:, 1] - y0
     frac = (uv - cells).astype(np.float32)
-    crop = np.zeros((ch, cw), dtype=bool)
-
     splat = _splat_native if native_engine.available() else _splat
-    crop = splat(crop, cx, cy, frac, r_px.astype(np.float32) ** 2, r_max, _sure_offsets(float(r_px.min())))
+    crop = splat((ch, cw), cx, cy, frac, r_px.astype(np.float32) ** 2, r_max, _sure_offsets(float(r_px.min())))
     if closing_px and closing_px > 0:
         closing = disk(int(closing_px))
         crop = _morph(_morph(crop, closing, erode=False), closing, erode=True)  # binary closing, border False
