@@ -149,3 +149,34 @@ def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
     s = read_posterior(tmp_path / "post")
     assert p.band_width_10 == pytest.approx(s.band_width(10.0)) and p.band_width_10 >= 1.0
     assert O.posterior_materials(8) == [0, 1, 4, 5] and O.posterior_materials(2, 1) == [0]
+
+
+def test_arms_with_the_same_run_share_one_posterior_analysis(tmp_path, monkeypatch):
+    """Three arms that ran the same two-setup estimate (70x70 mm, as often happens) are analysed once, and each gets
+    that analysis' outcome under its own name; a re-run analyses nothing, and only seed 0 of the chosen materials."""
+    m, other = Material(3.0, 0.8, 4.0), Material(2.0, 0.9, 5.0)
+
+    def arm(name, setup, g, est):
+        return O.ArmRun(name, setup, None, 0.0, 1.0, 2.0, g, True, est, 0.1, 0.2, 10, 1.0)
+
+    arms = [arm("information", "70x70", 1, m), arm("eig", "70x70", 1, m), arm("largest", "70x70", 1, m),
+            arm("perpendicularity", "24x20", 4, other), arm("repeat", "31x34", 3, other)]
+    recs = [O.OutcomeRecord({}, i, k, m, "31x34", m, 0.1, 0.2, arms, 1.0) for i, k in ((0, 0), (0, 1), (1, 0))]
+    calls = []
+
+    def fake_outcome(record, a, config, folder, *, forward):
+        calls.append((record.material_index, record.seed_index, a.arm))
+        return O.PosteriorOutcome(record.material_index, a.arm, [record.first_setup, a.second_setup], a.estimate,
+                                  1.5 + len(calls), True, 7.0)
+
+    monkeypatch.setattr(O, "posterior_outcome", fake_outcome)
+    study = O.DesignOutcome(tmp_path, {"materials": 4}, posteriors=2)
+    study.after_cases(recs, forward=None)
+    assert calls == [(0, 0, "information"), (0, 0, "perpendicularity"), (0, 0, "repeat")]
+    got = {p.arm: p for p in study.posteriors()}
+    assert set(got) == {a.arm for a in arms}
+    for name in ("eig", "largest"):
+        assert got[name].band_width_10 == got["information"].band_width_10 and got[name].wall_seconds == 0.0
+    assert len({got[n].band_width_10 for n in ("information", "perpendicularity", "repeat")}) == 3
+    study.after_cases(recs, forward=None)
+    assert len(calls) == 3

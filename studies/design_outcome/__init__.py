@@ -131,21 +131,33 @@ class DesignOutcome(Study):
         return run_case(case, self.config, forward=forward, progress=progress)
 
     def after_cases(self, records, *, forward, progress=None) -> None:
-        """The posterior outcome of every arm of seed 0 for :func:`posterior_materials`, one file each."""
-        from mpm.files import write_json
+        """The posterior outcome of every arm of seed 0 for :func:`posterior_materials`, one file each.  Arms whose
+        two-setup runs are the same (the same second setup, stage-2 generations and estimate: e.g. three arms that
+        picked 70x70 mm) share one analysis, which is deterministic."""
+        from dataclasses import replace
+
+        from mpm.files import read_json, write_json
         from studies.study import tell
 
         for r in records:
             if r.seed_index != 0 or r.material_index not in posterior_materials(self.config["materials"],
                                                                                 self.n_posteriors):
                 continue
+            done: dict = {}  # the same run -> its outcome
             for a in r.arms:
                 path = self.out / "posterior" / f"m{r.material_index:02d}_{a.arm}.json"
+                run = (a.second_setup, a.generations, tuple(a.estimate.as_array()))
                 if path.is_file():
+                    done.setdefault(run, PosteriorOutcome.from_dict(read_json(path)))
+                    continue
+                if run in done:
+                    tell(progress, f"posterior: material {r.material_index}, {a.arm}: the run of {done[run].arm}")
+                    write_json(path, replace(done[run], arm=a.arm, wall_seconds=0.0))
                     continue
                 tell(progress, f"posterior: material {r.material_index}, {a.arm}")
-                write_json(path, posterior_outcome(r, a, self.config, self.out / "posterior" /
-                                                   f"m{r.material_index:02d}_{a.arm}", forward=forward))
+                done[run] = posterior_outcome(r, a, self.config, self.out / "posterior" /
+                                              f"m{r.material_index:02d}_{a.arm}", forward=forward)
+                write_json(path, done[run])
 
     def posteriors(self) -> list[PosteriorOutcome]:
         from mpm.files import read_json
