@@ -22,6 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 TARGET_S = 120.0
+PHASES = ("discretisation error", "emulator", "posterior check", "laws' check", "the posterior", "evidence of",
+          "next setup by simulated information (", "report:")
 REPORT_FILES = ("posterior.json", "posterior.h5", "posterior_samples.npy", "posterior_log_prob.npy",
                 "posterior_draws.npy", "posterior_training.npz", "report")
 
@@ -41,16 +43,26 @@ def main(argv=None) -> int:
             run = Path(tmp) / "run"
             shutil.copytree(demo, run, ignore=shutil.ignore_patterns(*REPORT_FILES))
             t0 = time.perf_counter()
-            out = subprocess.run([*cli, "report", str(run)], capture_output=True, text=True)
+            timeline = []  # (seconds since the start, progress line) as the report prints them
+            with subprocess.Popen([*cli, "report", str(run)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True, env=dict(os.environ, PYTHONUNBUFFERED="1")) as proc:
+                for line in proc.stdout:
+                    timeline.append((time.perf_counter() - t0, line.rstrip()))
+                err = proc.stderr.read()
             wall = time.perf_counter() - t0
-            if out.returncode:
-                print(out.stderr, file=sys.stderr)
-                return out.returncode
-            verdicts = [line for line in out.stdout.splitlines() if line.startswith(("yield stress", "shear thinning"))]
+            if proc.returncode:
+                print(err, file=sys.stderr)
+                return proc.returncode
+            lines = [line for _, line in timeline]
+            verdicts = [line for line in lines if line.startswith(("yield stress", "shear thinning"))]
             print(f"virheo report on the demo run, repeat {k + 1}: {wall:.0f} s (target {TARGET_S:.0f} s: "
                   f"{'met' if wall <= TARGET_S else 'NOT met'})")
             for line in verdicts:
                 print(f"  {line}")
+            print("  phases (seconds at which the report printed each progress line):")
+            for t, line in timeline:
+                if line.startswith(PHASES):
+                    print(f"  {t:6.1f}  {line[:110]}")
     return 0
 
 
