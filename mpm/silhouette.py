@@ -63,15 +63,12 @@ def _sure_offsets(r_min: float) -> np.ndarray | None:
 def _row_halfwidths(footprint: np.ndarray) -> np.ndarray:
     """Half-widths a[r] of a point-symmetric footprint (odd sizes, centred) whose every row r is the run of
     columns [c - a, c + a] around the centre column c (-1 for an empty row): the disks used here."""
-    h, w = footprint.shape
-    c = w // 2
-    a = np.full(h, -1, dtype=np.int64)
-    for r, row in enumerate(footprint.astype(bool)):
-        n = int(row.sum())
-        if n:
-            a[r] = n // 2
-            if n % 2 == 0 or not row[c - a[r]:c + a[r] + 1].all():
-                raise ValueError("footprint rows must be runs centred on the middle column")
+    fp = np.asarray(footprint, dtype=bool)
+    n = fp.sum(axis=1)
+    a = np.where(n > 0, n // 2, -1).astype(np.int64)
+    centred = np.abs(np.arange(fp.shape[1]) - fp.shape[1] // 2)[None, :] <= a[:, None]
+    if not np.array_equal(fp, centred):  # an even run, or one off the middle, differs
+        raise ValueError("footprint rows must be runs centred on the middle column")
     if (a < 0).all():
         raise ValueError("empty footprint")
     return a
