@@ -32,6 +32,7 @@ import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -90,8 +91,9 @@ class SimRequest:
         model["engine"] = model.get("engine") or None
         return cls(**d, model=ForwardModel(**model))
 
-    @property
+    @cached_property
     def key(self) -> str:
+        """The request's stable key: the SHA-256 of its canonical JSON (computed once: a study asks it many times)."""
         return digest(self.to_dict())
 
     @property
