@@ -152,10 +152,7 @@ def _splat(shape, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
 
 def _splat_native(shape, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
     """:func:`_splat` by the native extension (``mpm._native.splat``): the same pixels (float32 arithmetic in the same
-    order), every particle's disk set beside the sure footprint, none skipped (a skipped one covers only pixels
-    already set)."""
-    from mpm.native_engine import _native
-
+    order); the sure footprints first, then each particle's disk, row by row, skipping rows already set."""
     ch, cw = shape
     dx, dy = _disk_offsets(r_max)
     out = np.zeros(shape, dtype=np.uint8)
@@ -164,9 +161,10 @@ def _splat_native(shape, cx, cy, frac, r2, r_max: float, sure) -> np.ndarray:
     else:
         ys, xs = np.nonzero(sure)
         sdy, sdx = (ys - sure.shape[0] // 2).astype(np.int64), (xs - sure.shape[1] // 2).astype(np.int64)
-    _native.splat(np.ascontiguousarray(cx, np.int64), np.ascontiguousarray(cy, np.int64),
-                  np.ascontiguousarray(frac, np.float32), np.ascontiguousarray(r2, np.float32),
-                  np.ascontiguousarray(dx, np.int64), np.ascontiguousarray(dy, np.int64), sdx, sdy, out, ch, cw)
+    native_engine._native.splat(np.ascontiguousarray(cx, np.int64), np.ascontiguousarray(cy, np.int64),
+                                np.ascontiguousarray(frac, np.float32), np.ascontiguousarray(r2, np.float32),
+                                np.ascontiguousarray(dx, np.int64), np.ascontiguousarray(dy, np.int64), sdx, sdy, out,
+                                ch, cw)
     return out.view(bool)
 
 
