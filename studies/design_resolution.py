@@ -187,10 +187,12 @@ class DesignResolution(Study):
         self.models, self.materials = list(models), int(materials)
 
     def cases(self):
-        for probe in MATERIALS[:self.materials]:
-            for model in self.models:
-                for s in setups_of(probe):
-                    yield ResolutionCase(probe, model, s, self.out / "cases" / probe.slug / model_label(model) / str(s))
+        """Model by model, the materials' setups from the smallest box up: a simulation's cost grows with the box, so
+        a run stopped early has the most cases done (the order of the results does not depend on it)."""
+        for model in self.models:
+            pairs = [(probe, s) for probe in MATERIALS[:self.materials] for s in setups_of(probe)]
+            for probe, s in sorted(pairs, key=lambda p: p[1].width_mm * p[1].height_mm):
+                yield ResolutionCase(probe, model, s, self.out / "cases" / probe.slug / model_label(model) / str(s))
 
     def announce(self, case) -> str:
         return f"{case.probe.slug} {model_label(case.model)} {case.setup}"

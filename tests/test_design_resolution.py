@@ -63,3 +63,16 @@ def test_a_malformed_model_is_one_line_and_exit_2(tmp_path):
     proc = subprocess.run(argv, env=ENV, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "CELL_MM:PPC" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()
+
+
+def test_cases_run_model_by_model_from_the_smallest_box_and_cover_every_setup(tmp_path):
+    models = [R.ForwardModel(5.0, 1), R.ForwardModel(2.5, 2)]
+    planned = list(R.DesignResolution(tmp_path, {}, models=models, materials=2).cases())
+    expected = {(p.slug, R.model_label(m), str(s)) for m in models for p in R.MATERIALS[:2] for s in R.setups_of(p)}
+    keys = [(c.probe.slug, R.model_label(c.model), str(c.setup)) for c in planned]
+    assert len(keys) == len(expected) and set(keys) == expected
+    labels = [R.model_label(c.model) for c in planned]
+    assert labels == sorted(labels, key=[R.model_label(m) for m in models].index)  # one model after the other
+    for m in models:
+        areas = [c.setup.width_mm * c.setup.height_mm for c in planned if c.model == m]
+        assert areas == sorted(areas)
