@@ -189,9 +189,10 @@ class DesignResolution(Study):
     def cases(self):
         """Model by model, the materials' setups from the smallest box up: a simulation's cost grows with the box, so
         a run stopped early has the most cases done (the order of the results does not depend on it)."""
+        pairs = sorted(((probe, s) for probe in MATERIALS[:self.materials] for s in setups_of(probe)),
+                       key=lambda p: p[1].width_mm * p[1].height_mm)
         for model in self.models:
-            pairs = [(probe, s) for probe in MATERIALS[:self.materials] for s in setups_of(probe)]
-            for probe, s in sorted(pairs, key=lambda p: p[1].width_mm * p[1].height_mm):
+            for probe, s in pairs:
                 yield ResolutionCase(probe, model, s, self.out / "cases" / probe.slug / model_label(model) / str(s))
 
     def announce(self, case) -> str:
