@@ -209,6 +209,13 @@ def connect(scheduler: str):
 
 
 # -- evaluation -------------------------------------------------------------------------------------
+def work(request: SimRequest) -> float:
+    """A simulation's relative cost: its particles (the box's volume over the particle spacing cubed) times its
+    steps (inversely proportional to the cell width)."""
+    spacing_mm = request.model.cell_mm / request.model.ppc
+    return request.width_mm * request.height_mm * request.depth_mm / spacing_mm ** 3 / request.model.cell_mm
+
+
 def _serve(requests: Iterable[SimRequest], store: Store | None, executor,
            done: Callable[[SimRequest, SimResult, bool], None]) -> None:
     """``done(request, result, cached)`` once per distinct request: from the store where present, else simulated via
@@ -224,6 +231,8 @@ def _serve(requests: Iterable[SimRequest], store: Store | None, executor,
             done(req, hit, True)
         else:
             todo[req.key] = req
+    # dearest first: a batch then ends on its cheapest simulations, so no worker waits long for the last one
+    todo = dict(sorted(todo.items(), key=lambda kv: -work(kv[1])))
 
     def finish(key: str, res: SimResult) -> None:
         if store is not None:

@@ -177,3 +177,28 @@ def test_workers_stop_when_their_parent_is_killed(tmp_path):
     else:
         os.kill(worker, signal.SIGKILL)
         raise AssertionError(f"worker {worker} still runs 15 s after its parent was killed")
+
+
+def test_a_batch_is_submitted_dearest_first(tmp_path):
+    # a 70x70 mm box at 2.5 mm cells before 20x20 at the same cells, finer cells before coarser: the batch ends on
+    # its cheapest simulations, whatever order the caller asked in; the results come back in the caller's order
+    from concurrent.futures import Executor
+
+    from mpm.model import ForwardModel
+
+    m = Material(1.0, 0.6, 4.0)
+    reqs = [batch.request_for(m, Setup(w, h), density=1000.0, image_size=(96, 54), simulator=SIM,
+                              model=ForwardModel(cell_mm=cell, ppc=2))
+            for w, h, cell in ((20, 20, 2.5), (70, 70, 2.5), (30, 40, 5.0), (30, 40, 2.5))]
+    submitted = []
+
+    class Recording(Executor):  # a pool's path through _serve: everything submitted, then collected
+        def submit(self, fn, /, *args, **kwargs):
+            submitted.append(args[0])
+            return batch.InlineExecutor().submit(fn, *args, **kwargs)
+
+    out = batch.evaluate(reqs, store=Store(tmp_path), executor=Recording())
+    assert [(r.width_mm, r.height_mm, r.model.cell_mm) for r in submitted] == [
+        (70, 70, 2.5), (30, 40, 2.5), (20, 20, 2.5), (30, 40, 5.0)]
+    assert [batch.work(r) for r in submitted] == sorted(map(batch.work, reqs), reverse=True)
+    assert all(np.array_equal(o.silhouettes, batch.run_one(r).silhouettes) for o, r in zip(out, reqs))
