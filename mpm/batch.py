@@ -4,7 +4,8 @@
   long-lived process, so the Taichi runtime and its compiled kernels survive between tasks).
 * Any ``concurrent.futures.Executor`` may be passed instead, e.g. a dask.distributed
   ``Client.get_executor()``; a ``Client`` itself is turned into its executor.  The code path is
-  the same: ``submit`` + ``as_completed``, no scheduler of our own.
+  the same: ``submit`` + ``as_completed``, no scheduler of our own; a batch is only submitted dearest first
+  (:func:`work`), so that it ends on its cheapest simulations.
 * ``workers=0`` evaluates in the calling process (:class:`InlineExecutor`), for tests and debugging.
 
 The store is consulted before anything is submitted and every result is written to it the moment
