@@ -232,9 +232,9 @@ def test_quiet_still_reports_a_damaged_store_in_one_line(tmp_path, python_warnin
         f"moved to {aside[0].name}; rebuilt from 0 intact simulations on disk"]
 
 
-def test_estimate_points_to_the_validated_design_command(capsys, tmp_path, folder, fake):
+def test_estimate_points_to_the_default_design_command(capsys, tmp_path, folder, fake):
     """The next setup `estimate` prints is the paper's criterion's; the line names it and gives the `virheo design`
-    command of the validated one, which runs as printed."""
+    command of the default criterion, which runs as printed."""
     import shlex
 
     assert main(["estimate", str(folder), "--out", str(tmp_path / "o"), "--preset", "demo", *FAST]) == 0
@@ -244,7 +244,7 @@ def test_estimate_points_to_the_validated_design_command(capsys, tmp_path, folde
     # the laws' verdicts come from the report, and the last line says so with the command to run
     assert "yield stress and shear thinning decided by the laws' evidence" in lines[-1]
     assert lines[-1].endswith(f"virheo report {tmp_path / 'o'}")
-    command = shlex.split(line.split("the validated choice: ")[1])
+    command = shlex.split(line.split("the default criterion: ")[1])
     assert command[:2] == ["virheo", "design"] and command[-2:] == ["--done", "30x20"]
     assert main(command[1:] + ["--workers", "0", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["criterion"] == "information"

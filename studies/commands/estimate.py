@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     design = f"virheo design --material {m.eta:.4g},{m.n:.4g},{m.sigma_y:.4g} {done}"
     if est.next_setup is not None:
         print(f"next setup: {est.next_setup} mm (width x height), by the paper's perpendicularity criterion, which "
-              f"proved weak in the simulator's own information; the validated choice: {design}")
+              f"proved weak in the simulator's own information; the default criterion: {design}")
     else:
         print(f"next setup: none proposed by the paper's perpendicularity criterion (note above); the simulator's "
               f"own criterion: {design}")
