@@ -43,11 +43,13 @@ def law_evidences(laws, noise, emu, samples, lo, hi, *, seed: int = 0):
                  if cut else None), faces
 
 
-def face_draws(faces, count: int, seed: int, round_: int) -> np.ndarray:
-    """``count`` draws of each special law's posterior samples on its face (normalised), to simulate."""
+def face_draws(faces, count: int, seed: int, round_: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` draws of each special law's posterior samples on its face (normalised), to simulate, and the index
+    of the face each draw comes from."""
     rng = np.random.default_rng([seed, 99, round_])
-    picks = [f[rng.choice(len(f), size=min(count, len(f)), replace=False)] for f in faces if len(f)]
-    return np.vstack(picks) if picks else np.zeros((0, 3))
+    picks = [f[rng.choice(len(f), size=min(count, len(f)), replace=False)] for f in faces]
+    labels = np.concatenate([np.full(len(p), i) for i, p in enumerate(picks)]) if picks else np.zeros(0, int)
+    return (np.vstack(picks) if picks else np.zeros((0, 3))), labels
 
 
 def evidence_of_report(folder, laws=LAW_NAMES) -> EvidenceSummary:

@@ -60,6 +60,9 @@ class PosteriorCheck(JsonRecord):
     rms_nats: float
     failed: int  # draws whose simulation failed
     passed: bool
+    worst_face_nats: float | None = None  # the laws' check: the face whose mean offset lies farthest from zero
+
+    OMIT_IF_NONE = ("worst_face_nats",)
 
 
 @dataclass(kw_only=True)

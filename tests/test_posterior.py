@@ -390,3 +390,28 @@ def test_a_chain_in_emcees_own_layout_is_sampled_afresh(tmp_path):
     post = sample(_log_prob, np.full(3, 0.5), nwalkers=16, seed=4, min_ess=1e9, max_steps=100, check_every=100,
                   backend=path)
     assert post.iterations == 100 and stored_chain(path).shape == (100, 16, 3)
+
+
+def test_the_laws_check_is_two_sided_on_each_face():
+    """A law's evidence is as wrong when the emulator is pessimistic on its face as when it is optimistic: with
+    groups, a face whose simulated fit is better than the emulated one by more than CHECK_NATS fails the check,
+    even when another face's optimism cancels it in the mean."""
+    from similarity.likelihood import NoiseScale
+    from similarity.posterior import CHECK_NATS, posterior_check
+
+    class Flat:
+        def predict(self, X):
+            return np.full(len(np.atleast_2d(X)), 0.01)
+
+    noise = NoiseScale(n_pixels=16_000, n_eff=16.0, loss_at_optimum=0.005, discretisation=0.0, emulator=0.0, frames=16)
+    X = np.full((8, 3), 0.5)
+    step = 3 * CHECK_NATS / noise.precision  # three nats of loss
+    y = np.r_[np.full(4, 0.01 - step), np.full(4, 0.01 + step)]  # face 0 pessimistic, face 1 optimistic
+    groups = np.r_[np.zeros(4, int), np.ones(4, int)]
+    pooled = posterior_check(noise, Flat(), X, y, rounds=1)
+    assert pooled.passed and abs(pooled.optimism_nats) < 1e-9 and pooled.worst_face_nats is None
+    split = posterior_check(noise, Flat(), X, y, rounds=1, groups=groups)
+    assert not split.passed and abs(split.worst_face_nats) == pytest.approx(3 * CHECK_NATS)
+    close = posterior_check(noise, Flat(), X, 0.01 + 0.5 * (y - 0.01) / 3, rounds=1, groups=groups)
+    assert close.passed and abs(close.worst_face_nats) == pytest.approx(0.5 * CHECK_NATS)
+    assert not posterior_check(noise, Flat(), X, np.r_[y[:7], np.nan] * 0 + 0.01, rounds=1, groups=groups).passed

@@ -148,13 +148,14 @@ def test_corrupt_backend_is_one_line_exit_2(reported, tmp_path, capsys):
 
 
 def test_too_few_simulations_for_the_emulator_is_one_line_exit_2(reported, tmp_path):
-    """A box with too few stored candidates (e.g. a store made by another solver version) says what to raise."""
+    """A box with too few stored candidates (a store made by another solver version: none of its simulations
+    serve this one) and no new simulations (none either on the laws' faces) says what to raise."""
     run, _ = reported
     copy = tmp_path / "run"
     shutil.copytree(run, copy)
     (copy / "posterior.h5").unlink()
-    proc = _cli("report", str(copy), "--workers", "0", "--new-simulations", "2", "--half-width", "0.001",
-                "--no-discretisation", "--quiet")
+    proc = _cli("report", str(copy), "--workers", "0", "--new-simulations", "0", "--half-width", "0.001",
+                "--store", str(tmp_path / "other-solver"), "--no-discretisation", "--quiet")
     assert proc.returncode == 2 and "raise --new-simulations" in proc.stderr, proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1
 
