@@ -27,6 +27,10 @@ import numpy as np  # noqa: E402
 from measured import how_measured  # noqa: E402
 
 
+def _material(m) -> str:
+    return f"eta {m.eta:.3g} Pa s^n, n {m.n:.3g}, sigma_y {m.sigma_y:.3g} Pa"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("cases", nargs="+", help="case folders of `virheo study laws`")
@@ -55,7 +59,7 @@ def main(argv=None) -> int:
             emu = LossEmulator(seed=int(t["seed"])).fit(X, y, theta=t["theta"])
         nz = post["noise"]
         tau = nz["n_eff"] / (2.0 * (nz["loss_at_optimum"] + nz["discretisation"]))  # eq. (1) without e_emul
-        print(f"\n## case {case['case']} ({case['law']}): truth {Material(**case['truth'])}, setups "
+        print(f"\n## case {case['case']} ({case['law']}): truth {_material(Material(**case['truth']))}, setups "
               f"{' + '.join(case['setups'])}")
         new = archive(run, np.full(3, 0.5), 0.5)
         new = new[not_among(new, X, 1e-9)]
@@ -74,15 +78,15 @@ def main(argv=None) -> int:
         points |= {f"{e['law']} best (emulator)": Material(**e["best"]) for e in post["evidence"]["laws"]}
         losses = fresh_run.forward.losses(list(points.values()), fresh_run.experiments, fresh_run.preset.final)
         for (name, m), row in zip(points.items(), losses):
-            print(f"{name:32s} {m}: mean loss {np.mean(row):.5f} at the estimating model")
+            print(f"{name:32s} {_material(m)}: mean loss {np.mean(row):.5f} at the estimating model")
         if args.search:
             x_hat = normalize(fresh_run.estimate.as_array())
             for law in special:
                 Xs, ys = face_search(lambda Z: mean_losses(fresh_run, Z), law, x_hat, seed=int(case["config"]["seed"])
                                      + int(case["case"]))
                 i = int(np.nanargmin(ys))
-                print(f"{law.name + ' best (face search)':32s} {Material.from_array(denormalize(Xs[i]))}: mean loss "
-                      f"{ys[i]:.5f} ({len(ys)} simulated)")
+                best = _material(Material.from_array(denormalize(Xs[i])))
+                print(f"{law.name + ' best (face search)':32s} {best}: mean loss {ys[i]:.5f} ({len(ys)} simulated)")
     return 0
 
 

@@ -31,16 +31,33 @@ def law_evidences(laws, noise, emu, samples, lo, hi, *, seed: int = 0):
     def log_like(x):
         return noise.log_likelihood(emu.predict(np.atleast_2d(x)))
 
-    out, cut, faces = [], [], []
-    for law in laws:
-        ev, face = law_evidence(log_like, law, lo, hi, samples=None if law.fixed else samples, seed=seed)
-        out.append(ev)
+    found, cut, faces, inward = {}, [], [], []
+    for law in sorted(laws, key=lambda law: not law.fixed):  # the faces first: the general laws' proposal uses them
+        # a general law's importance proposal also covers the special laws' posteriors near their faces, where its
+        # own posterior's sampler (started at the estimate) may have missed a mode of the likelihood
+        ev, face = law_evidence(log_like, law, lo, hi, samples=None if law.fixed else np.vstack([samples, *inward]),
+                                seed=seed)
+        found[law.name] = ev
         if law.fixed:
             faces.append(face)
+            inward.append(off_the_face(face, law, samples, lo, hi, seed))
             if reaches_a_face(face, log_like(face), lo, hi):
                 cut.append(law.name)
-    return out, (f"the posterior of {', '.join(cut)} on its face reaches an inner face of the emulator's box"
-                 if cut else None), faces
+    return [found[law.name] for law in laws], (f"the posterior of {', '.join(cut)} on its face reaches an inner face "
+                                               "of the emulator's box" if cut else None), faces
+
+
+def off_the_face(face, law, samples, lo, hi, seed: int = 0) -> np.ndarray:
+    """A special law's posterior samples on its face (normalised, (k, 3)) moved into the box along each fixed
+    coordinate by half-normal steps as wide as the general posterior ``samples`` there: where the general law's
+    likelihood has a mode pressed against the face, these cover it (the face samples alone have no width across it)."""
+    rng = np.random.default_rng([seed, 7])
+    out = np.array(face, float)
+    spread = np.std(np.atleast_2d(samples), axis=0)
+    for i, v in law.fixed:
+        inward = 1.0 if v <= 0.5 * (lo[i] + hi[i]) else -1.0
+        out[:, i] = np.clip(v + inward * np.abs(rng.normal(0.0, max(spread[i], 1e-6), len(out))), lo[i], hi[i])
+    return out
 
 
 def face_draws(faces, count: int, seed: int, round_: int) -> tuple[np.ndarray, np.ndarray]:

@@ -284,7 +284,8 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         for law in (law for law in laws if law.fixed):
             X_face, y_face = face_search(simulate_draws, law, x_hat, seed=seed)
             i = int(np.nanargmin(y_face)) if np.isfinite(y_face).any() else 0
-            say(f"{law.name}: best fit on its face {Material.from_array(denormalize(X_face[i]))}, loss "
+            eta, n, sigma_y = denormalize(X_face[i])
+            say(f"{law.name}: best fit on its face eta {eta:.3g} Pa s^n, n {n:.3g}, sigma_y {sigma_y:.3g} Pa, loss "
                 f"{y_face[i]:.5f} ({len(y_face)} simulated)")
             X_all, y_all = np.vstack([X_all, X_face]), np.concatenate([y_all, y_face])
 

@@ -146,3 +146,44 @@ def test_an_emulator_fitted_again_with_its_hyperparameters_predicts_the_same():
     free = (emu.gp.kernel_.theta > emu.gp.kernel_.bounds[:, 0] + 1e-6) & (
         emu.gp.kernel_.theta < emu.gp.kernel_.bounds[:, 1] - 1e-6)
     assert np.all(np.abs(grad[free]) < 1e-2 * max(1.0, abs(lml)))
+
+
+def test_a_mode_on_a_face_that_the_posterior_sampler_missed_still_counts_in_the_general_laws_evidence():
+    """Two Gaussian modes of equal mass: one inside the space (where the Herschel-Bulkley posterior's walkers started
+    and stayed) and one pressed against the n = 1 face.  law_evidences integrates the general law with a proposal that
+    also covers the special laws' posteriors on their faces, so its ln Z is the exact one of both modes (the interior
+    samples alone miss about ln 2)."""
+    from scipy.special import logsumexp
+
+    from similarity.law_evidence import law_evidences
+
+    sd = np.array([0.01, 0.01, 0.01])
+    mu_in, mu_face = np.array([0.3, 0.6, 0.4]), np.array([0.5, N_ONE - 0.005, 0.3])
+    mass_face = float(norm.cdf(0.5))  # mu_face's n-marginal inside the space
+    log_norm = -1.5 * np.log(2 * np.pi) - np.sum(np.log(sd))
+
+    def log_like(x):
+        x = np.atleast_2d(x)
+        a = log_norm - 0.5 * np.sum(((x - mu_in) / sd) ** 2, axis=1)
+        b = log_norm - 0.5 * np.sum(((x - mu_face) / sd) ** 2, axis=1) - np.log(mass_face)  # equal masses
+        return np.logaddexp(a, b)
+
+    class Noise:
+        def log_likelihood(self, loss):
+            return -np.asarray(loss)
+
+    class Emulator:
+        def predict(self, x):
+            return -log_like(x)
+
+    lo, hi = np.zeros(3), np.ones(3)
+    inside = np.random.default_rng(2).normal(mu_in, sd, (4000, 3))
+    laws = parse_laws("bingham")
+    (general, special), why, faces = law_evidences(laws, Noise(), Emulator(), inside, lo, hi, seed=5)
+    assert why is None and len(faces) == 1
+    assert abs(general.log_z - np.log(2.0)) < 4 * general.log_z_err + 0.02, general
+    alone, _ = law_evidence(log_like, LAWS["herschel-bulkley"], lo, hi, samples=inside, seed=5)
+    assert alone.log_z < np.log(2.0) - 0.3  # what the interior samples give without the faces'
+    exact_face = logsumexp([log_norm - 0.5 * np.sum(((np.array([0.5, N_ONE, 0.3]) - m) / sd)[[1]] ** 2)
+                            + np.log(2 * np.pi) + np.sum(np.log(sd[[0, 2]])) for m in (mu_face,)]) - np.log(mass_face)
+    assert abs(special.log_z - exact_face) < 4 * special.log_z_err + 0.02
