@@ -22,7 +22,8 @@ SPACE = "log-eta"  # runny materials' eta lie in the first percent of the linear
 
 def face_search(losses: Callable, law, start, *, seed: int = 0, generations: int = GENERATIONS,
                 popsize: int = POPSIZE) -> tuple[np.ndarray, np.ndarray]:
-    """CMA-ES over the free coordinates of ``law``'s face from ``start`` (normalised, (3,)), each generation simulated
+    """CMA-ES over the free coordinates of ``law``'s face (a line search where one is free) from ``start``
+    (normalised, (3,)), each generation simulated
     at once by ``losses`` (normalised (k, 3) -> mean video losses (k,), NaN where a simulation failed).  Returns the
     normalised materials simulated, all on the face, and their losses.  Deterministic for a seed: a re-run asks
     the same materials (and the store answers them)."""
@@ -30,6 +31,8 @@ def face_search(losses: Callable, law, start, *, seed: int = 0, generations: int
 
     free = list(law.free)
     u0 = to_search(np.clip(np.asarray(start, float), 0.0, 1.0), SPACE)
+    if len(free) == 1:
+        return _line_search(losses, law, float(u0[free[0]]), generations, popsize)
     es = cma.CMAEvolutionStrategy(np.clip(u0[free], 0.02, 0.98), SIGMA0,
                                   {"bounds": [0.0, 1.0], "popsize": popsize, "seed": seed + 1, "verbose": -9})
     X, y = [], []
@@ -42,4 +45,21 @@ def face_search(losses: Callable, law, start, *, seed: int = 0, generations: int
         finite = loss[np.isfinite(loss)]
         worst = (float(finite.max()) if finite.size else 1.0) * 2.0 + 1.0  # a failed simulation ranks last
         es.tell(list(z), np.where(np.isfinite(loss), loss, worst).tolist())
+    return np.vstack(X), np.concatenate(y)
+
+
+def _line_search(losses, law, u0: float, generations: int, popsize: int) -> tuple[np.ndarray, np.ndarray]:
+    """The one free coordinate's search (pycma does not run in one dimension): ``popsize`` evenly spaced points around
+    the best so far, over +-2 SIGMA0 at first and half as wide each generation."""
+    center, half = u0, 2.0 * SIGMA0
+    X, y = [], []
+    for _ in range(generations):
+        z = np.unique(np.clip(center + half * np.linspace(-1.0, 1.0, popsize), 0.0, 1.0))
+        x = from_search(law.embed(z[:, None]), SPACE)
+        loss = np.asarray(losses(x), float)
+        X.append(x)
+        y.append(loss)
+        if np.isfinite(loss).any():
+            center = float(z[np.nanargmin(loss)])
+        half /= 2.0
     return np.vstack(X), np.concatenate(y)
