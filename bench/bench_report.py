@@ -22,8 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 
 TARGET_S = 120.0
-PHASES = ("discretisation error", "best fit on its face", "emulator", "posterior check", "laws' check", "the posterior", "evidence of",
-          "next setup by simulated information (", "report:")
+PHASES = ("discretisation error", "best fit on its face", "emulator", "posterior check", "laws' check", "the posterior",
+          "evidence of", "next setup by simulated information (", "report:")
 REPORT_FILES = ("posterior.json", "posterior.h5", "posterior_samples.npy", "posterior_log_prob.npy",
                 "posterior_draws.npy", "posterior_training.npz", "report")
 
