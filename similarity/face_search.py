@@ -12,7 +12,7 @@ from typing import Callable
 
 import numpy as np
 
-from similarity.space import from_search, to_search
+from similarity.space import denormalize, from_search, to_search
 
 GENERATIONS = 8  # per face
 POPSIZE = 6
@@ -23,10 +23,9 @@ SPACE = "log-eta"  # runny materials' eta lie in the first percent of the linear
 def face_search(losses: Callable, law, start, *, seed: int = 0, generations: int = GENERATIONS,
                 popsize: int = POPSIZE) -> tuple[np.ndarray, np.ndarray]:
     """CMA-ES over the free coordinates of ``law``'s face (a line search where one is free) from ``start``
-    (normalised, (3,)), each generation simulated
-    at once by ``losses`` (normalised (k, 3) -> mean video losses (k,), NaN where a simulation failed).  Returns the
-    normalised materials simulated, all on the face, and their losses.  Deterministic for a seed: a re-run asks
-    the same materials (and the store answers them)."""
+    (normalised, (3,)), each generation simulated at once by ``losses`` (normalised (k, 3) -> mean video losses (k,),
+    NaN where a simulation failed).  Returns the normalised materials simulated, all on the face, and their losses.
+    Deterministic for a seed: a re-run asks the same materials (and the store answers them)."""
     import cma
 
     free = list(law.free)
@@ -45,6 +44,21 @@ def face_search(losses: Callable, law, start, *, seed: int = 0, generations: int
         finite = loss[np.isfinite(loss)]
         worst = (float(finite.max()) if finite.size else 1.0) * 2.0 + 1.0  # a failed simulation ranks last
         es.tell(list(z), np.where(np.isfinite(loss), loss, worst).tolist())
+    return np.vstack(X), np.concatenate(y)
+
+
+def search_faces(losses: Callable, laws, start, *, seed: int = 0, say=print) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`face_search` on the face of each special law among ``laws``, one after the other; ``say`` gets one line
+    per face with its best fit.  Returns everything simulated (normalised, (k, 3)) and the losses."""
+    X, y = [np.zeros((0, 3))], [np.zeros(0)]
+    for law in (law for law in laws if law.fixed):
+        X_face, y_face = face_search(losses, law, start, seed=seed)
+        i = int(np.nanargmin(y_face)) if np.isfinite(y_face).any() else 0
+        eta, n, sigma_y = denormalize(X_face[i])
+        say(f"{law.name}: best fit on its face eta {eta:.3g} Pa s^n, n {n:.3g}, sigma_y {sigma_y:.3g} Pa, loss "
+            f"{y_face[i]:.5f} ({len(y_face)} simulated)")
+        X.append(X_face)
+        y.append(y_face)
     return np.vstack(X), np.concatenate(y)
 
 

@@ -32,7 +32,7 @@ import numpy as np
 from mpm.files import write_json
 from mpm.params import Material
 from similarity.evidence import parse_laws, summarise
-from similarity.face_search import face_search
+from similarity.face_search import search_faces
 from similarity.law_evidence import LAW_NAMES, TRAINING_FILE, face_draws, law_evidences
 from similarity.trust_box import REACH_NATS, cut_fraction, first_box, reaches_a_face
 from similarity.flow_band import flow_band
@@ -281,13 +281,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         return mean_losses(run, X)
 
     if new_simulations:  # each special law's best fit, found by the simulator on its face
-        for law in (law for law in laws if law.fixed):
-            X_face, y_face = face_search(simulate_draws, law, x_hat, seed=seed)
-            i = int(np.nanargmin(y_face)) if np.isfinite(y_face).any() else 0
-            eta, n, sigma_y = denormalize(X_face[i])
-            say(f"{law.name}: best fit on its face eta {eta:.3g} Pa s^n, n {n:.3g}, sigma_y {sigma_y:.3g} Pa, loss "
-                f"{y_face[i]:.5f} ({len(y_face)} simulated)")
-            X_all, y_all = np.vstack([X_all, X_face]), np.concatenate([y_all, y_face])
+        X_all, y_all = search_faces(simulate_draws, laws, x_hat, seed=seed, say=say)
 
     # every law's face must lie in the box, so the loop starts at the first box that reaches them all, with the
     # smaller boxes' batches simulated at once: the design stays densest at the estimate
@@ -332,7 +326,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
             X_all, y_all = np.vstack([X_all, X_chk]), np.concatenate([y_all, y_chk])
             say(f"laws' check: {len(y_chk)} draws on the special laws' faces simulated, the emulator is "
                 f"{face_check.optimism_nats:+.2f} nats optimistic on them (RMS {face_check.rms_nats:.2f}; "
-                f"{face_check.worst_face_nats:+.2f} on the worst face), {face_check.failed} failed: "
+                f"{face_check.worst_face_nats or 0.0:+.2f} on the worst face), {face_check.failed} failed: "
                 f"{'trusted' if face_check.passed else 'retraining'}")
             if not face_check.passed:
                 retry = True

@@ -55,3 +55,18 @@ def test_face_search_ranks_a_failed_simulation_last():
 
     X, y = face_search(losses, law, from_search(np.array([0.7, 1.0, 0.9]), SPACE), seed=0)
     assert np.isnan(y).any() and np.nanmin(y) < 1e-3 + 0.05 * 0.03**2 * 2
+
+
+def test_search_faces_searches_each_special_law_once_and_says_its_best_fit():
+    from similarity.evidence import parse_laws
+    from similarity.face_search import search_faces
+
+    lines = []
+    target = np.array([0.7, 1.0, 0.0])  # on the Newtonian edge: every face's best lies there
+    X, y = search_faces(_valley(target), parse_laws("bingham,power-law,newtonian"),
+                        from_search(np.array([0.8, 0.5, 0.3]), SPACE), seed=1, say=lines.append)
+    assert len(lines) == 3 and [ln.split(":")[0] for ln in lines] == ["bingham", "power-law", "newtonian"]
+    assert len(X) == len(y) and 8 * 6 * 2 < len(X) <= 8 * 6 * 3 and all("loss" in ln for ln in lines)  # a line
+    # search drops the points that the bounds clip onto one another
+    none, _ = search_faces(_valley(target), parse_laws(""), target, say=lines.append)
+    assert none.shape == (0, 3) and len(lines) == 3  # Herschel-Bulkley alone has no face

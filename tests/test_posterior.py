@@ -415,3 +415,16 @@ def test_the_laws_check_is_two_sided_on_each_face():
     close = posterior_check(noise, Flat(), X, 0.01 + 0.5 * (y - 0.01) / 3, rounds=1, groups=groups)
     assert close.passed and abs(close.worst_face_nats) == pytest.approx(0.5 * CHECK_NATS)
     assert not posterior_check(noise, Flat(), X, np.r_[y[:7], np.nan] * 0 + 0.01, rounds=1, groups=groups).passed
+
+
+def test_a_laws_check_whose_every_draw_failed_fails_without_a_face_figure():
+    from similarity.likelihood import NoiseScale
+    from similarity.posterior import posterior_check
+
+    class Flat:
+        def predict(self, X):
+            return np.full(len(np.atleast_2d(X)), 0.01)
+
+    noise = NoiseScale(n_pixels=16_000, n_eff=16.0, loss_at_optimum=0.005, discretisation=0.0, emulator=0.0, frames=16)
+    check = posterior_check(noise, Flat(), np.full((4, 3), 0.5), np.full(4, np.nan), rounds=1, groups=np.arange(4) % 2)
+    assert not check.passed and check.failed == 4 and check.worst_face_nats is None
