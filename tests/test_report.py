@@ -197,6 +197,15 @@ def test_the_laws_evidence_in_posterior_json_terminal_and_page(reported):
     for e in ev.laws:
         assert np.isfinite(e.log_z) and 0 < e.log_z_err < 0.3 and e.ess > 100, e
     assert s.emulator.laws_check is not None and s.emulator.laws_check.draws > 0
+    assert s.emulator.laws_check.worst_face_nats is not None
+    # the face search's simulations trained the emulator on every special law's face (8 generations of 6 each)
+    from similarity.evidence import N_ONE, SIGMA_Y_ZERO
+
+    with np.load(run / "posterior_training.npz") as t:
+        X = t["X"]
+    on_n1, on_s0 = np.isclose(X[:, 1], N_ONE), np.isclose(X[:, 2], SIGMA_Y_ZERO)
+    assert np.count_nonzero(on_n1 & ~on_s0) >= 40 and np.count_nonzero(on_s0 & ~on_n1) >= 40
+    assert np.count_nonzero(on_n1 & on_s0) >= 8  # the Newtonian line
     assert [v.question for v in ev.verdicts] == ["yield stress", "shear thinning"]
     for v in ev.verdicts:
         assert v.text in proc.stdout
