@@ -61,7 +61,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     from similarity.law_evidence import TRAINING_FILE, evidence_of_report
     from similarity.mcmc import sample
-    from similarity.posterior import box_log_posterior
+    from similarity.emulator_check import box_log_posterior
     from similarity.posterior_summary import read_posterior
     from surrogate.emulator import LossEmulator
 

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from similarity.likelihood import NoiseScale  # noqa: E402
 from similarity.mcmc import sample  # noqa: E402
-from similarity.posterior import box_log_posterior  # noqa: E402
+from similarity.emulator_check import box_log_posterior  # noqa: E402
 from surrogate.emulator import LossEmulator, box, space_filling  # noqa: E402
 from measured import how_measured  # noqa: E402  (bench/ is this script's folder)
 

@@ -25,7 +25,7 @@ Scale.  Nothing is hand-set: at the estimate M^ the residual *is* the noise, and
   misfit at the optimum (measurement noise and model error), delta_disc the forward model's
   discretisation error (the loss between the estimate simulated at the preset's cell width and at
   half of it) and e_emul the emulator's error where the posterior can lie
-  (:func:`similarity.posterior.emulator_error`) when the loss is emulated.  Each term is an independent source of silhouette mismatch and adds to the variance.
+  (:func:`similarity.emulator_check.emulator_error`) when the loss is emulated.  Each term is an independent source of silhouette mismatch and adds to the variance.
 
 Assumptions, stated: residual patches are independent of each other and Gaussian (the binary
 residual's variance is used, its discreteness ignored); the noise does not depend on M near M^;

@@ -51,7 +51,7 @@ class PosteriorStats(JsonRecord):
 
 @dataclass(kw_only=True)
 class PosteriorCheck(JsonRecord):
-    """The emulated posterior against the simulator (:func:`similarity.posterior.posterior_check`): posterior draws
+    """The emulated posterior against the simulator (:func:`similarity.emulator_check.posterior_check`): posterior draws
     simulated, and how much better the emulator's eq. (1) said they fit than the simulations did."""
 
     draws: int

@@ -200,7 +200,7 @@ def _fmt(v) -> str:
 
 def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, coverage=None) -> Path:
     """index.html in ``out`` referring to the PNGs by relative name (all in ``out``)."""
-    from similarity.posterior import FOLDS
+    from similarity.emulator_check import FOLDS
 
     out = Path(out)
     post, truth = summary.posterior, summary.truth

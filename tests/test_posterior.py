@@ -283,7 +283,7 @@ def test_posterior_check_retrains_an_emulator_that_promised_too_good_a_fit():
     finds the emulator optimistic by more than CHECK_NATS; with the draws in its training set the emulator's next
     posterior checks at least twice as well."""
     from similarity.likelihood import NoiseScale
-    from similarity.posterior import CHECK_NATS, checked_posterior, posterior_check
+    from similarity.emulator_check import CHECK_NATS, checked_posterior, posterior_check
 
     def true_loss(X):
         X = np.atleast_2d(X)
@@ -320,7 +320,7 @@ def test_emulator_error_is_measured_where_the_likelihood_reaches():
     e_emul), so it is the small error near the optimum, not the box-wide held-out error that would flatten the
     likelihood there."""
     from similarity.likelihood import NoiseScale
-    from similarity.posterior import MIN_SCORED, emulator_error, within_reach
+    from similarity.emulator_check import MIN_SCORED, emulator_error, within_reach
     from similarity.trust_box import REACH_NATS
 
     def loss(X):
@@ -347,7 +347,7 @@ def test_box_grows_while_the_posterior_reaches_an_inner_face():
     """A valley that leaves the box through a saddle puts few samples at its face, but the likelihood there is
     within reach of the best: the box must grow.  A posterior that has fallen off before the faces, or that rests
     on the material space's own boundary, does not make it grow, nor does a sample at a face far below the best."""
-    from similarity.posterior import REACH_NATS, cut_fraction, reaches_a_face
+    from similarity.trust_box import REACH_NATS, cut_fraction, reaches_a_face
 
     rng = np.random.default_rng(0)
     core = rng.normal(0.5, 0.02, (4000, 3))
@@ -397,7 +397,7 @@ def test_the_laws_check_is_two_sided_on_each_face():
     groups, a face whose simulated fit is better than the emulated one by more than CHECK_NATS fails the check,
     even when another face's optimism cancels it in the mean."""
     from similarity.likelihood import NoiseScale
-    from similarity.posterior import CHECK_NATS, posterior_check
+    from similarity.emulator_check import CHECK_NATS, posterior_check
 
     class Flat:
         def predict(self, X):
@@ -419,7 +419,7 @@ def test_the_laws_check_is_two_sided_on_each_face():
 
 def test_a_laws_check_whose_every_draw_failed_fails_without_a_face_figure():
     from similarity.likelihood import NoiseScale
-    from similarity.posterior import posterior_check
+    from similarity.emulator_check import posterior_check
 
     class Flat:
         def predict(self, X):

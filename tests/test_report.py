@@ -62,7 +62,7 @@ def test_posterior_summary_is_coherent(reported):
     assert s["emulator"]["cut_fraction"] <= 0.005 or s["emulator"]["half_width"] == 1.0
     # the posterior was checked on simulated draws (8 per fit), each of them listed before it was simulated
     check = s["emulator"]["check"]
-    from similarity.posterior import CHECK_NATS, CHECK_ROUNDS
+    from similarity.emulator_check import CHECK_NATS, CHECK_ROUNDS
     assert check["draws"] == 8 and 1 <= check["rounds"] <= CHECK_ROUNDS + 1
     assert check["passed"] == (check["failed"] == 0 and check["optimism_nats"] <= CHECK_NATS)
     assert len(np.load(run / "posterior_draws.npy")) >= 8 * check["rounds"]
