@@ -30,6 +30,7 @@ import numpy as np
 
 from mpm.files import write_json
 from mpm.params import Material
+from similarity.best_fit import best_fit
 from similarity.evidence import parse_laws, summarise
 from similarity.face_search import search_faces
 from similarity.law_evidence import LAW_NAMES, TRAINING_FILE, face_draws, law_evidences
@@ -211,6 +212,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     if check is not None and not check.passed:
         say(f"warning: after {check.rounds} checks the emulator is still {check.optimism_nats:.1f} nats optimistic on "
             f"the posterior's draws ({check.failed} of {check.draws} simulations failed): the posterior is not trusted")
+    simulated_best = best_fit(X_all, y_all, float(mean_losses(run, x_hat)[0]), base_noise.precision, laws)
     truth = run.truth
     # ellipsoids: posterior covariance and the Laplace approximation (finite-difference Hessian)
     ell = ellipsoid(post.mean, post.cov, 0.9)
@@ -268,7 +270,8 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
         ellipsoid_posterior=ell, ellipsoid_laplace=laplace, normals=normals, flow_band=band, eig_grid=eig_grid,
         next_setups_eig=next_eig, next_setup_perpendicular=next_perp, next_setup_information=next_info,
         evidence=summarise(evidences, lo, hi, next_setup=(next_info or {}).get("setup")
-                           or (next_eig[0]["setup"] if next_eig else None), filmed=run.setups) if evidences else None)
+                           or (next_eig[0]["setup"] if next_eig else None), filmed=run.setups) if evidences else None,
+        best_fit=simulated_best)
     np.save(run.folder / "posterior_samples.npy", post.samples)
     np.save(run.folder / "posterior_log_prob.npy", post.log_prob)  # one log-posterior per sample
     # `virheo laws` fits the same emulator again from it

@@ -14,6 +14,7 @@ import numpy as np
 
 from mpm.files import JsonRecord
 from mpm.params import Material
+from similarity.best_fit import BestFit
 from similarity.ellipsoid import Ellipsoid
 from similarity.evidence import EvidenceSummary
 from similarity.flow_band import band_width
@@ -110,13 +111,14 @@ class PosteriorSummary(JsonRecord):
     next_setup_information: dict | None = None
     rheometer_band_coverage: float | None = None  # set by the HTML report when given a rheometer curve
     evidence: EvidenceSummary | None = None  # the laws' evidences and verdicts; None in files written before them
+    best_fit: BestFit | None = None  # the best simulated fit against the estimate; None: none simulated, older files
 
     OMIT_IF_NONE = ("truth", "truth_normalised", "eig_grid", "rheometer_band_coverage", "next_setup_information",
-                    "evidence")
+                    "evidence", "best_fit")
     READERS = {"estimate": _material, "truth": _material, "noise": NoiseScale.from_dict,
                "emulator": EmulatorSummary.from_dict, "posterior": PosteriorStats.from_dict,
                "ellipsoid_posterior": Ellipsoid.from_dict, "ellipsoid_laplace": Ellipsoid.from_dict,
-               "evidence": EvidenceSummary.from_dict}
+               "evidence": EvidenceSummary.from_dict, "best_fit": BestFit.from_dict}
 
     def band_width(self, shear_rate: float) -> float:
         """Width of the 90 % flow-curve band at ``shear_rate`` [1/s] (:func:`similarity.flow_band.band_width`)."""

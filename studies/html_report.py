@@ -261,6 +261,8 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
         rheo = (f"<p>Rheometer curve: {e(rheometer.name)}; {100 * coverage:.0f} % of its points between 1 and "
                 f"100 1/s lie inside the 90 % band.</p>")
     laws = _laws_html(summary.evidence)
+    fit = summary.best_fit
+    better = f"<p><b>{e(fit.text[0].upper() + fit.text[1:])}.</b></p>" if fit is not None and fit.better else ""
     img = lambda key, alt: f'<img src="{e(figures[key].name)}" alt="{e(alt)}">' if figures.get(key) else ""
     ovl = "".join(f'<h3>setup {e(s)} mm</h3><img src="{e(p.name)}" alt="overlays {e(s)}">' for s, p in overlays)
     status = "converged" if post.converged else "NOT converged (increase the step budget)"
@@ -274,7 +276,7 @@ img{{max-width:100%;display:block;margin:.5em 0}}h2{{border-bottom:1px solid #cc
 {post.iterations} steps x {post.nwalkers} walkers, integrated autocorrelation time
 {max(post.tau):.1f} steps, effective sample size {post.ess:.0f}.</p>
 <h2>Estimate and 90 % credible intervals</h2>
-<table><tr>{''.join(f'<th>{h}</th>' for h in head)}</tr>{''.join(rows)}</table>
+<table><tr>{''.join(f'<th>{h}</th>' for h in head)}</tr>{''.join(rows)}</table>{better}
 {img('intervals', 'credible intervals')}
 <h2>Posterior (corner plot)</h2>{img('corner', 'corner plot')}
 <h2>Flow curve with 90 % band</h2>{img('flow', 'flow curve band')}{rheo}

@@ -46,7 +46,7 @@ def test_report_page_references_only_existing_local_files(reported):
 
 
 def test_posterior_summary_is_coherent(reported):
-    run, _ = reported
+    run, proc = reported
     s = json.loads((run / "posterior.json").read_text())
     post = s["posterior"]
     assert post["ess"] >= 300 and post["converged"]
@@ -71,6 +71,14 @@ def test_posterior_summary_is_coherent(reported):
     lo, hi = box(s["estimate_normalised"], s["emulator"]["half_width"])
     assert np.allclose(s["emulator"]["trust_region"], [lo, hi])
     assert np.all(samples >= lo - 1e-12) and np.all(samples <= hi + 1e-12)
+    # the best simulated fit: the estimate's own simulation is in the training set, so it fits no worse than that
+    from similarity.best_fit import NOTE_NATS
+    fit = s["best_fit"]
+    assert fit["loss"] <= fit["estimate_loss"] and fit["nats"] >= 0.0
+    from similarity.likelihood import NoiseScale
+    tau = NoiseScale.from_dict(s["noise"]).with_emulator(0.0).precision  # eq. (1) between simulations: no e_emul
+    assert np.isclose(fit["nats"], tau * (fit["estimate_loss"] - fit["loss"]))
+    assert ("a better fit than the estimate was simulated" in proc.stdout) == (fit["nats"] >= NOTE_NATS)
     lengths = s["ellipsoid_posterior"]["lengths"]
     assert lengths == sorted(lengths) and lengths[0] > 0
     assert s["next_setups_eig"] and s["next_setups_eig"][0]["eig_nats"] >= s["next_setups_eig"][-1]["eig_nats"]

@@ -103,6 +103,8 @@ def run(args: argparse.Namespace) -> int:
         f"{summary.band_width(r):.2f} at {r:g}" for r in (1.0, 10.0, 100.0)) + " 1/s")
     if summary.rheometer_band_coverage is not None:
         print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * summary.rheometer_band_coverage:.0f} %")
+    if summary.best_fit is not None and summary.best_fit.better:
+        print(summary.best_fit.text)
     print_verdicts(summary.evidence)
     print(f"report: {page}")
     return 0
