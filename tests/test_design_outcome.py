@@ -148,6 +148,8 @@ def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
 
     s = read_posterior(tmp_path / "post")
     assert p.band_width_10 == pytest.approx(s.band_width(10.0)) and p.band_width_10 >= 1.0
+    # the Herschel-Bulkley posterior alone (as registered): no special law's evidence, so no face searched
+    assert [e.law for e in s.evidence.laws] == ["herschel-bulkley"]
     assert O.posterior_materials(8) == [0, 1, 4, 5] and O.posterior_materials(2, 1) == [0]
 
 

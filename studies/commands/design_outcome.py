@@ -30,7 +30,8 @@ def register(study_subparsers) -> None:
     p.add_argument("--budget-cpu-s", type=real, default=150.0, metavar="S",
                    help="CPU seconds of each arm's stage 2, the criterion's simulations included (default 150)")
     p.add_argument("--posteriors", type=integer, default=4, metavar="P",
-                   help="materials (half runny, half pastes) whose arms get the posterior outcome, seed 0 (default 4)")
+                   help="materials (half runny, half pastes) whose arms get the posterior outcome (the Herschel-Bulkley "
+                        "posterior of `virheo report --laws herschel-bulkley`), seed 0 (default 4)")
     add_run_options(p, default_out="./virheo-design-outcome", generations=False)
     p.set_defaults(func=run)
 

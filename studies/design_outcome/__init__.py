@@ -293,7 +293,7 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
 def posterior_outcome(record: OutcomeRecord, arm: ArmRun, config: dict, folder: Path, *, forward
                       ) -> PosteriorOutcome:
     """Film the arm's two setups into ``folder``, estimate there as the case did (the store serves it), write the
-    run's result.json and analyse it as `virheo report` does."""
+    run's result.json and analyse it as `virheo report --laws herschel-bulkley` does."""
     from mpm.files import write_json
     from similarity.emulation import film
     from similarity.estimate import estimate, get_preset
@@ -310,7 +310,7 @@ def posterior_outcome(record: OutcomeRecord, arm: ArmRun, config: dict, folder: 
     write_json(folder / "result.json", est.to_dict() | {
         "folders": [str(Path(e.path).resolve()) for e in experiments], "simulator": config["simulator"],
         "truth": record.truth.to_dict(), "e_rel": e_rel(record.truth, est.material)})
-    summary = analyse(folder, forward=forward).summary
+    summary = analyse(folder, forward=forward, laws=("herschel-bulkley",)).summary  # the band: HB's posterior
     i = int(np.argmin(np.abs(np.asarray(summary.flow_band["shear_rate"]) - 10.0)))
     lo, hi = summary.flow_band["5"][i], summary.flow_band["95"][i]
     true = float(record.truth.stress(summary.flow_band["shear_rate"][i]))
