@@ -261,8 +261,7 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
         rheo = (f"<p>Rheometer curve: {e(rheometer.name)}; {100 * coverage:.0f} % of its points between 1 and "
                 f"100 1/s lie inside the 90 % band.</p>")
     laws = _laws_html(summary.evidence)
-    fit = summary.best_fit
-    better = f"<p><b>{e(fit.text[0].upper() + fit.text[1:])}.</b></p>" if fit is not None and fit.better else ""
+    better = better_fit_html(summary.best_fit)
     img = lambda key, alt: f'<img src="{e(figures[key].name)}" alt="{e(alt)}">' if figures.get(key) else ""
     ovl = "".join(f'<h3>setup {e(s)} mm</h3><img src="{e(p.name)}" alt="overlays {e(s)}">' for s, p in overlays)
     status = "converged" if post.converged else "NOT converged (increase the step budget)"
@@ -299,6 +298,14 @@ loss the likelihood reaches (largest error {emu.max_abs:.3g}, their loss range {
     path = out / "index.html"
     path.write_text(page, encoding="utf-8")
     return path
+
+
+def better_fit_html(fit) -> str:
+    """The best simulated fit as a paragraph where it beats the estimate by ``NOTE_NATS`` (similarity.best_fit), else
+    nothing."""
+    if fit is None or not fit.better:
+        return ""
+    return f"<p><b>{html.escape(fit.text[0].upper() + fit.text[1:])}.</b></p>"
 
 
 def _laws_html(evidence) -> str:

@@ -40,3 +40,15 @@ def test_a_fit_within_the_noise_or_worse_is_no_news_and_the_record_round_trips()
     worse = best_fit(x, [0.006], 0.004, 1000.0, LAWS)  # the estimate itself fits better: negative nats
     assert worse.nats < 0 and not worse.better
     assert BestFit.from_dict(worse.to_dict()) == worse
+
+
+def test_the_report_page_says_it_only_where_the_fit_is_better():
+    from studies.html_report import better_fit_html
+
+    x = np.array([[0.3, 1.0, 0.4]])
+    x[0, 1] = N_ONE
+    better = best_fit(x, [0.0039], 0.0061, 1000.0, LAWS)
+    html = better_fit_html(better)
+    assert html.startswith("<p><b>A better fit than the estimate was simulated") and "(on the bingham face)" in html
+    assert "2.2 nats better" in html
+    assert better_fit_html(best_fit(x, [0.0039], 0.0040, 1000.0, LAWS)) == "" and better_fit_html(None) == ""

@@ -43,6 +43,10 @@ def test_report_page_references_only_existing_local_files(reported):
         assert not re.match(r"^[a-z]+:", ref), ref  # no http:, https:, data: or file: URLs: opens offline
         assert (page.parent / ref).is_file() and (page.parent / ref).stat().st_size > 1000, ref
     assert not re.search(r"<script|<link|@import|url\(", text)
+    # the best simulated fit stands under the estimate's table where it beats the estimate by a nat
+    from similarity.best_fit import NOTE_NATS
+    fit = json.loads((run / "posterior.json").read_text())["best_fit"]
+    assert ("A better fit than the estimate was simulated" in text) == (fit["nats"] >= NOTE_NATS)
 
 
 def test_posterior_summary_is_coherent(reported):
