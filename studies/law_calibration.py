@@ -13,7 +13,8 @@ random 1 mm-grid setup.  Per case:
 
 Outcomes per question (yield stress, shear thinning): among the cases with |ln BF| >= ln 10 the share whose
 verdict is right (target >= 90 %), the cases decisively wrong (|ln BF| >= ln 100 against the truth; target none)
-and the cases left unresolved per true law.  Resumable case by case (:mod:`studies.study`).  Writes
+and the cases left unresolved per true law.  Resumable case by case (:mod:`studies.study`), run one of each true law
+in turn (:func:`interleaved`).  Writes
 ``laws.json``, ``laws.md`` and ``laws.png``.
 """
 from __future__ import annotations
@@ -69,6 +70,16 @@ def design(laws=TRUE_LAWS, seed: int = 0) -> list[tuple[str, Material, Setup]]:
             sigma_y = 0.0
         out.append((law, Material(float(eta), float(n), float(sigma_y)), random_setups(1, rng, replace=True)[0]))
     return out
+
+
+def interleaved(laws) -> list[int]:
+    """The cases' indices in the order they run: one of each true law in turn (in the order the laws first appear),
+    so that a round stopped partway has scored every law.  The order changes no case's result."""
+    by_law: dict[str, list[int]] = {}
+    for i, law in enumerate(laws):
+        by_law.setdefault(law, []).append(i)
+    queues = list(by_law.values())
+    return [q[k] for k in range(max(map(len, queues))) for q in queues if k < len(q)]
 
 
 def holds(question, truth: Material) -> bool:
@@ -205,7 +216,9 @@ class LawStudy(Study):
 
     def cases(self):
         laws = QUICK_LAWS if self.config["quick"] else TRUE_LAWS
-        for i, (law, truth, setup) in enumerate(design(laws, self.config["seed"])):
+        planned = design(laws, self.config["seed"])
+        for i in interleaved(laws):
+            law, truth, setup = planned[i]
             yield LawCase(i, law, truth, setup, self.out / "cases" / f"case_{i:02d}")
 
     def run_case(self, case, *, forward, progress=None):

@@ -30,6 +30,18 @@ def test_design_has_the_issued_mix_of_laws():
     assert design() == cases  # seeded
 
 
+def test_cases_run_one_of_each_law_in_turn():
+    from studies.law_calibration import interleaved
+
+    order = interleaved(TRUE_LAWS)
+    assert sorted(order) == list(range(len(TRUE_LAWS)))  # every case once
+    laws = [TRUE_LAWS[i] for i in order]
+    assert set(laws[:4]) == set(TRUE_LAWS) and set(laws[4:8]) == set(TRUE_LAWS)  # every law in each of the first rounds
+    for law in set(TRUE_LAWS):  # each law's cases in their own order
+        mine = [i for i in order if TRUE_LAWS[i] == law]
+        assert mine == sorted(mine)
+
+
 def _record(law, truth, log_bf_yield, log_bf_thin):
     verdicts = [{"question": q.name, "log_bf": b, "log_bf_err": 0.1} for q, b in zip(QUESTIONS, (log_bf_yield, log_bf_thin))]
     return LawRecord(case=0, config={}, law=law, truth=truth, setups=["30x30", "70x70"], estimate=truth, e_rel=0.0,
