@@ -291,6 +291,12 @@ class Store:
         rows = self._db.execute("SELECT request FROM sims ORDER BY created").fetchall()
         return [SimRequest.from_dict(json.loads(r[0])) for r in rows]
 
+    def timings(self) -> list[tuple[SimRequest, float]]:
+        """(request, wall seconds of its simulation) of every simulation that succeeded, in the order they were
+        stored: what a simulation costs by model and setup on the machine that ran it."""
+        rows = self._db.execute("SELECT request, wall_seconds FROM sims WHERE status='ok' ORDER BY created").fetchall()
+        return [(SimRequest.from_dict(json.loads(r)), float("nan") if w is None else float(w)) for r, w in rows]
+
     def materials(self, settings) -> list[tuple[float, float, float]]:
         """Materials (eta, n, sigma_y) stored (ok or failed) in every one of ``settings`` (``SimRequest.setting_key``
         values), in the order they were first simulated."""

@@ -94,6 +94,7 @@ def test_put_get_hit_and_failure(tmp_path):
     got = store.get(bad)
     assert not got.ok and "blow-up" in got.error
     assert store.count() == 2 and store.count("failed") == 1
+    assert store.timings() == [(r, 1.5)]  # the successful simulation's wall time only
     store.put_loss(r, "exp1", 0.0123)
     store.put_loss(bad, "exp1", float("nan"))
     assert store.get_loss(r, "exp1") == pytest.approx(0.0123)
