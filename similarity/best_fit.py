@@ -53,7 +53,7 @@ def best_fit(X, y, estimate_loss: float, precision: float, laws) -> BestFit | No
         return None
     i = int(np.nanargmin(y))
     x = np.asarray(X, float)[i]
-    on = [law for law in laws if all(abs(x[j] - v) < 1e-9 for j, v in law.fixed)]
+    on = [law for law in laws if law.on_face(x, x)]  # the box of one point reaches the faces it lies on
     law = max(on, key=lambda law: len(law.fixed)).name if on else "herschel-bulkley"
     return BestFit(material=Material.from_array(denormalize(np.clip(x, 0.0, 1.0))), loss=float(y[i]),
                    estimate_loss=float(estimate_loss), nats=float(precision * (estimate_loss - y[i])), law=law)
