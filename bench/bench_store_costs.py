@@ -4,8 +4,7 @@
 
 Each store (a run's or a study's ``store/`` folder) keeps every simulation's wall time as its worker measured it:
 one simulation process, one thread.  Prints, per model (cell width, particles per cell per axis, engine) and setup,
-the count and the median, smallest and largest wall time, and per model the median's ratio to its smallest setup's.
-The figures are those of the machine that filled the stores, under its load then: a store filled while other work
+the count and the median, smallest and largest wall time.  The figures are those of the machine that filled the stores, under its load then: a store filled while other work
 ran holds slower times (the median is the figure to quote).
 """
 from __future__ import annotations
