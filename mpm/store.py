@@ -124,6 +124,15 @@ class SimResult:
     def ok(self) -> bool:
         return self.error is None
 
+    @property
+    def particle_steps(self) -> float | None:
+        """Particles x time steps: the simulation's work, the same on every machine and under any load (None when
+        its record does not say, e.g. a failed simulation)."""
+        stats = self.stats or {}
+        if stats.get("n_particles") is None or stats.get("steps") is None:
+            return None
+        return float(stats["n_particles"]) * float(stats["steps"])
+
 
 def _setting_of(request_json: str) -> tuple:
     """(setting key, eta, n, sigma_y) of a request in the index (all None for one that does not parse)."""

@@ -160,13 +160,19 @@ class Objective:
         return losses.mean(axis=1)
 
 
+def _generations_key(generations: float):
+    """A stage's budget in its id: whole generations as the int they always were, a fraction as a float."""
+    g = float(generations)
+    return int(g) if g.is_integer() else g
+
+
 def _stage_id(objective: Objective, x0, sigma0, seed, generations, search_space: str, shape) -> str:
     space = {} if search_space == "linear" else {"search_space": search_space}  # linear: the ids before the option
     if shape is not None:
         space["shape"] = [round(float(v), 9) for v in np.ravel(shape)]
     return digest(space | {
         "experiments": objective.exp_ids, "x0": [float(v) for v in x0], "sigma0": float(sigma0), "seed": int(seed),
-        "generations": int(generations), "popsize": POPSIZE, "elitist": CMA_ELITIST,
+        "generations": _generations_key(generations), "popsize": POPSIZE, "elitist": CMA_ELITIST,
         "restarts": f"ipop/{STALL_DRAWS}/{TOLX}", "state": STATE_VERSION,
         "forward": [r.to_dict() | {"eta": 0, "n": 0, "sigma_y": 0} for r in objective.requests(np.asarray(x0))],
     })[:32]
@@ -250,7 +256,7 @@ def _generation(state: StageState, objective: Objective, budget: int) -> None:
     ))
 
 
-def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int, generations: int, forward: Forward,
+def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int, generations: float, forward: Forward,
               progress: Callable[[dict], None] | None = None, stage_index: int = 1,
               screened: Sequence[Sequence[float]] = (), screened_simulations: int | None = None,
               finish: bool = False, search_space: str = "linear", shape=None) -> Stage:
@@ -258,6 +264,8 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
     ``search_space`` coordinates, :data:`similarity.space.SEARCH_SPACES`) and initial covariance shape ``shape``
     (e.g. the previous stage's ``end_shape``; None: isotropic); resumable.
 
+    ``generations``: the budget, ``generations x POPSIZE`` candidate draws (rounded); a fraction of a generation ends
+    the stage on a partial last one.
     ``screened``: rows [x0, x1, x2, loss] already evaluated on these experiments (:func:`warm_start`);
     they count as the stage's evaluations (``screened_simulations`` new simulations, by default one each)
     and compete for its best candidate.
@@ -280,7 +288,7 @@ def run_stage(experiments, *, x0, sigma0: float, model: ForwardModel, seed: int,
     setups = [str(setup_of(e)) for e in experiments]
     if progress:
         progress(StageStarted(stage_index, setups, generations, state.drawn // POPSIZE))
-    budget = generations * POPSIZE  # candidate draws per stage, whatever the restarts' population
+    budget = round(generations * POPSIZE)  # candidate draws per stage, whatever the restarts' population
     while state.drawn < budget:
         if state.es.stop() or _stalled(state):
             _restart(state, x0, sigma0, seed)

@@ -113,7 +113,7 @@ def _forward(forward: Forward | None) -> tuple[Forward, bool]:
 
 
 def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward | None = None,
-             generations: int | Sequence[int] | None = None, progress: Callable[[Event], None] | None = None,
+             generations: float | Sequence[float] | None = None, progress: Callable[[Event], None] | None = None,
              n_setups: int | None = None, acquire: Callable[[Setup], object] | None = None,
              propose: Callable[[Material, list], Setup | None] | None = Perpendicularity(),
              start: Material | None = None) -> Estimate:
@@ -126,7 +126,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
     ``Estimate.notes`` says why (:func:`skipped_proposal`).  With ``acquire``
     (a callable Setup -> experiment, e.g. an emulator) the proposed setup is filmed and added until
     ``n_setups`` are done.  ``generations`` overrides the preset's per-stage count (not the finishing
-    stage's); a sequence gives stage k its k-th entry (the last one for later stages).  ``forward``: the store and executor that simulate (default: the store under ~/.cache, one
+    stage's); a sequence gives stage k its k-th entry (the last one for later stages); a fraction of a generation
+    ends a stage on a partial last one (:func:`similarity.cma_stage.run_stage`).  ``forward``: the store and executor that simulate (default: the store under ~/.cache, one
     worker process per CPU core).  ``start``: stage 1's CMA-ES mean (default: the centre of the material space),
     e.g. a rheometer's fit or an earlier estimate.  Returns the best evaluated candidate of the last stage.
     """
@@ -134,8 +135,8 @@ def estimate(experiments, *, preset="footage", seed: int = 0, forward: Forward |
     if not experiments:
         raise ValueError("estimate needs at least one experiment")
     preset = get_preset(preset)
-    per_stage = [int(g) for g in (generations if isinstance(generations, (list, tuple)) else
-                                  [generations or preset.generations])]
+    per_stage = [g if isinstance(g, int) else float(g) for g in
+                 (generations if isinstance(generations, (list, tuple)) else [generations or preset.generations])]
     if not per_stage or min(per_stage) < 1:
         raise ValueError(f"generations={generations} must be >= 1")
     n_setups = int(n_setups or len(experiments))

@@ -26,6 +26,7 @@ class SetupFacts:
     cpu_seconds: float  # per simulation at the criterion's model: its footage's at the estimate, as measured
     runout_mm: float  # advance of the flow front from the first to the last frame of the footage at the estimate
     leaves_view: bool  # that footage's material reaches the image's side edge by the last frame (not in the first)
+    particle_steps: float | None = None  # that simulation's particles x time steps (mpm.store.SimResult.particle_steps)
 
     def flags(self) -> list[str]:
         """Why the setup may not be worth filming, in words (empty: none)."""
@@ -151,5 +152,6 @@ class _FactCollector:
             runout = float((front[-1] - front[0]) * 1e3) if front is not None and len(front) else float("nan")
             leaves = sil is not None and len(sil) > 0 and _touches_side(sil[-1]) and not _touches_side(sil[0])
             cpu = res.stats.get("cpu_s") if res.stats else None  # as measured when it ran, also when stored
-            out[key] = SetupFacts(float(cpu if cpu is not None else res.wall_seconds), runout, bool(leaves))
+            out[key] = SetupFacts(float(cpu if cpu is not None else res.wall_seconds), runout, bool(leaves),
+                                  res.particle_steps)
         return out

@@ -102,11 +102,21 @@ class LawRecord(JsonRecord):
     evidence: dict  # similarity.evidence.EvidenceSummary's JSON
     wall_seconds: dict  # footage, stage 1, design, estimate, posterior, total
     simulations_run: int | None
+    # the emulator against the simulator where the evidence came from: "posterior" (the Herschel-Bulkley posterior's
+    # draws) and "laws" (the special laws' on their faces), each PosteriorCheck's JSON or None (not checked)
+    checks: dict | None = None
 
     READERS = {"truth": lambda d: Material(**d), "estimate": lambda d: Material(**d)}
 
     def verdict(self, question: str) -> dict | None:
         return next((v for v in self.evidence["verdicts"] if v["question"] == question), None)
+
+    @property
+    def trusted(self) -> bool | None:
+        """Every check of the emulator passed (None: the record keeps no checks)."""
+        if self.checks is None:
+            return None
+        return all(c is None or c["passed"] for c in self.checks.values())
 
 
 def _film(truth, setup, folder, config, forward):
@@ -151,7 +161,10 @@ def run_case(case: LawCase, *, config: dict, forward, progress=None) -> LawRecor
     return LawRecord(case=case.index, config=config, law=case.law, truth=truth,
                      setups=[str(case.setup), str(second)], estimate=est.material, e_rel=e_rel(truth, est.material),
                      evidence=a.summary.evidence.to_dict(), wall_seconds=wall,
-                     simulations_run=forward.simulations_run - ran)
+                     simulations_run=forward.simulations_run - ran,
+                     checks={name: None if c is None else c.to_dict()
+                             for name, c in (("posterior", a.summary.emulator.check),
+                                             ("laws", a.summary.emulator.laws_check))})
 
 
 # -- the study --------------------------------------------------------------------------------------------
@@ -174,6 +187,7 @@ class LawSummary(JsonRecord):
     questions: list  # QuestionSummary
     most_probable_right: int  # cases whose most probable law is the true one
     cases: int
+    untrusted: int = 0  # cases whose evidence came from an emulator that failed a check (scored like the others)
 
 
 def summarise(recs: list[LawRecord]) -> LawSummary:
@@ -192,7 +206,8 @@ def summarise(recs: list[LawRecord]) -> LawSummary:
                                   right_share=share, decisively_wrong=int(wrong), unresolved_by_law=unresolved,
                                   passed=bool(share is not None and share >= 0.9 and wrong == 0)))
     best = sum(max(r.evidence["probabilities"], key=r.evidence["probabilities"].get) == r.law for r in recs)
-    return LawSummary(questions=qs, most_probable_right=int(best), cases=len(recs))
+    return LawSummary(questions=qs, most_probable_right=int(best), cases=len(recs),
+                      untrusted=sum(r.trusted is False for r in recs))
 
 
 def run_study(out, *, quick: bool = False, preset: str | None = None, generations: int | None = None,
@@ -208,6 +223,9 @@ def run_study(out, *, quick: bool = False, preset: str | None = None, generation
               "footage_model": {"cell_mm": footage.cell_mm, "ppc": footage.ppc}, "quick": bool(quick),
               "half_width": 0.5 if quick else 0.1}  # the emulator's first box: the report's default, wider when quick
     return LawStudy(out, config).run(forward=forward, progress=progress)
+
+
+CHECK_WORDS = {None: "not kept", True: "passed", False: "FAILED"}  # LawRecord.trusted in the table
 
 
 class LawStudy(Study):
@@ -236,26 +254,29 @@ class LawStudy(Study):
 
     def table(self, recs, summ: LawSummary) -> str:
         lines = ["| case | true law | truth (eta, n, sigma_y) | setups | estimate | E_rel | ln BF yield stress | "
-                 "ln BF shear thinning | most probable law | wall [s] |", "|---:|---|---|---|---|---:|---:|---:|---|---:|"]
+                 "ln BF shear thinning | most probable law | emulator checks | wall [s] |",
+                 "|---:|---|---|---|---|---:|---:|---:|---|---|---:|"]
         for r in recs:
             t, e = r.truth, r.estimate
             cells = []
             for q in QUESTIONS:
                 v = r.verdict(q.name)
                 mark = ("–" if abs(v["log_bf"]) < RESOLVED else "right" if (v["log_bf"] > 0) == holds(q, t) else "WRONG")
-                cells.append(f"{v['log_bf']:+.1f} ± {v['log_bf_err']:.1f} ({mark})")
+                cells.append(f"{v['log_bf']:+.2f} ± {v['log_bf_err']:.2f} ({mark})")
             best = max(r.evidence["probabilities"], key=r.evidence["probabilities"].get)
             lines.append(f"| {r.case} | {r.law} | {t.eta:.3g}, {t.n:.3g}, {t.sigma_y:.3g} | {' + '.join(r.setups)} | "
                          f"{e.eta:.3g}, {e.n:.3g}, {e.sigma_y:.3g} | {r.e_rel:.3f} | {cells[0]} | {cells[1]} | {best} | "
+                         f"{CHECK_WORDS[r.trusted]} | "
                          f"{r.wall_seconds['total']:.0f} |")
-        lines += ["", "| question | cases | resolved (\\|ln BF\\| >= 2.3) | right among them | decisively wrong | "
+        lines += ["", "| question | cases | resolved (\\|ln BF\\| >= ln 10) | right among them | decisively wrong | "
                   "unresolved, by true law | target met |", "|---|---:|---:|---:|---:|---|---|"]
         for q in summ.questions:
             share = "–" if q.right_share is None else f"{q.right}/{q.resolved} ({100 * q.right_share:.0f} %)"
             un = ", ".join(f"{k} {v}" for k, v in sorted(q.unresolved_by_law.items())) or "none"
             lines.append(f"| {q.question} | {q.cases} | {q.resolved} | {share} | {q.decisively_wrong} | {un} | "
                          f"{'yes' if q.passed else 'no'} |")
-        lines.append(f"\nMost probable law the true one in {summ.most_probable_right}/{summ.cases} cases.")
+        lines.append(f"\nMost probable law the true one in {summ.most_probable_right}/{summ.cases} cases. Cases whose "
+                     f"evidence came from an emulator that failed a check: {summ.untrusted} (scored like the others).")
         return "\n".join(lines) + "\n"
 
     def plots(self, recs, summ) -> None:

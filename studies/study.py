@@ -4,9 +4,13 @@ model, each kept in ``OUT/cases/.../case.json``, then a summary, a markdown tabl
 :meth:`Study.run` walks the study's cases in order.  A case whose folder holds a ``case.json`` made with the
 same configuration is read back, not recomputed; one made with another configuration stops the study (one
 line: use another ``--out``).  The others run through ``forward`` (:class:`mpm.forward.Forward`), whose store
-also serves what a case killed midway had simulated.  :meth:`Study.write` then reads every finished case under
-``OUT`` and writes ``OUT/NAME.json`` (configuration, summary, wall time, cases), ``OUT/NAME.md`` (the table)
-and the figures.
+also serves what a case killed midway had simulated.  A case whose run raises a ``ValueError``, ``RuntimeError``
+or ``ArithmeticError`` (every simulation of a stage failed, the footage's own simulation failed: what a resume
+would meet again) is kept as ``failed.json`` beside where its case.json would be, with its error, and the study
+goes on; a resume does not run it again (delete the file to retry).  A broken worker pool is not such a failure: it
+stops the study.  :meth:`Study.write` then reads every finished case under ``OUT`` and writes ``OUT/NAME.json``
+(configuration, summary, wall time, cases, failed cases), ``OUT/NAME.md`` (the table, and the failed cases under
+it) and the figures.
 
 How to add a study
 ------------------
@@ -30,6 +34,7 @@ How to add a study
 from __future__ import annotations
 
 import time
+from concurrent.futures import BrokenExecutor
 from pathlib import Path
 from typing import Iterable
 
@@ -62,6 +67,15 @@ def finished_case(folder, config: dict) -> dict | None:
     if rec.get("config") != config:
         raise ValueError(f"{done} was made with other settings ({rec.get('config')}); use another --out")
     return rec
+
+
+def failed_cases(out, *patterns: str) -> list[dict]:
+    """The ``failed.json`` records ({"folder", "error", "config"}) beside the ``case.json`` globs ``patterns``."""
+    found = []
+    for pattern in patterns:
+        for p in sorted(Path(out).glob(str(Path(pattern).with_name("failed.json")))):
+            found.append(read_json(p) | {"folder": str(p.parent.relative_to(out))})
+    return found
 
 
 def tell(progress, text: str | None) -> None:
@@ -112,7 +126,7 @@ class Study:
     def result(self, records: list, summary, wall_seconds: float | None) -> dict:
         """The content of OUT/<name>.json."""
         return {"config": records[0].config, "summary": summary.to_dict(), "wall_seconds": wall_seconds,
-                "cases": [r.to_dict() for r in records]}
+                "cases": [r.to_dict() for r in records], "failed": self.failed()}
 
     # -- the skeleton -----------------------------------------------------------------------------------------
     def records(self) -> list:
@@ -120,15 +134,30 @@ class Study:
         configurations)."""
         return [self.record.from_dict(d) for d in finished_cases(self.out, *self.case_files)]
 
+    def failed(self) -> list[dict]:
+        """The failed cases under OUT (:func:`failed_cases`), made with this study's configuration."""
+        return [f for f in failed_cases(self.out, *self.case_files)
+                if self.config is None or f.get("config") == self.config]
+
     def case(self, case, *, forward, progress=None):
         """The record of one case: read back from its folder when finished with this configuration, else run
-        and kept there."""
+        and kept there; None for a failed case (module docstring), kept as its folder's failed.json."""
         folder = Path(case.folder)
         done = finished_case(folder, self.config)
         if done is not None:
             return self.record.from_dict(done)
+        failed = folder / "failed.json"
+        if failed.is_file() and read_json(failed).get("config") == self.config:
+            return None
         folder.mkdir(parents=True, exist_ok=True)
-        rec = self.run_case(case, forward=forward, progress=progress)
+        try:
+            rec = self.run_case(case, forward=forward, progress=progress)
+        except BrokenExecutor:
+            raise
+        except (ValueError, RuntimeError, ArithmeticError) as exc:
+            write_json(failed, {"config": self.config, "error": str(exc).splitlines()[0] if str(exc) else
+                                type(exc).__name__})
+            return None
         write_json(folder / "case.json", rec)
         return rec
 
@@ -138,8 +167,12 @@ class Study:
         recs = []
         for case in self.cases():
             tell(progress, self.announce(case))
-            recs.append(self.case(case, forward=forward, progress=progress))
-            tell(progress, self.report(recs[-1]))
+            rec = self.case(case, forward=forward, progress=progress)
+            if rec is None:
+                tell(progress, f"  failed, left out: {read_json(Path(case.folder) / 'failed.json')['error']}")
+                continue
+            recs.append(rec)
+            tell(progress, self.report(rec))
         self.after_cases(recs, forward=forward, progress=progress)
         return self.write(wall_seconds=time.perf_counter() - t0)
 
@@ -150,5 +183,10 @@ class Study:
         self.plots(recs, summ)
         result = self.result(recs, summ, wall_seconds)
         write_json(self.out / f"{self.name}.json", result)
-        (self.out / f"{self.name}.md").write_text(self.table(recs, summ))
+        table = self.table(recs, summ)
+        failed = self.failed()
+        if failed:
+            table += ("\nFailed cases, left out of the summary (their failed.json; delete it to retry):\n\n"
+                      + "".join(f"- {f['folder']}: {f['error']}\n" for f in failed))
+        (self.out / f"{self.name}.md").write_text(table)
         return result

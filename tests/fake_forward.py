@@ -47,7 +47,11 @@ def simulate(request: SimRequest) -> SimResult:
         top = area / (np.pi / 4.0 * L)  # quarter-ellipse of the same area
         prof = top * np.sqrt(np.clip(1.0 - (x / L) ** 2, 0.0, None))
         frames[k] = y[:, None] <= prof[None, :]
-    return SimResult(frames, front, TIMES.copy(), {"model": "fake"})
+    # the work a simulation of this box would do (particles x steps), as the engine's stats report it
+    spacing_mm = (request.model.cell_mm or 2.5) / (request.model.ppc or 1)
+    particles = int(request.width_mm * request.height_mm * request.depth_mm / spacing_mm**3)
+    return SimResult(frames, front, TIMES.copy(), {"model": "fake", "n_particles": particles,
+                                                   "steps": int(1.0 / (3.0 * 1.4e-4 * (request.model.cell_mm or 2.5)))})
 
 
 def simulate_flaky(request: SimRequest) -> SimResult:

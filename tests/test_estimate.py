@@ -108,6 +108,21 @@ def _stage(exps, store, generations, progress=None):
                        generations=generations, forward=Forward(store, simulator=SIM), progress=progress)
 
 
+def test_a_fraction_of_a_generation_ends_the_stage_on_a_partial_one(tmp_path):
+    """A budget of 3 + 3/7 generations draws 24 candidates: three generations as a whole-generation stage of 3 draws
+    them (the same CMA-ES, the same best so far), then a partial fourth of 3 draws; its id is its own."""
+    exps = _footage(Store(tmp_path / "truth"), setups=((30, 50),))
+    whole = _stage(exps, Store(tmp_path / "whole"), 3)
+    part = _stage(exps, Store(tmp_path / "part"), 3 + 3 / 7)
+    assert whole.evaluations == 21 and part.evaluations == 24 and part.history[-1].drawn == 24
+    assert [h.best_x for h in part.history[:3]] == [h.best_x for h in whole.history]
+    assert part.loss <= whole.loss
+    kw = dict(x0=[0.5] * 3, sigma0=0.2, seed=5, search_space="linear", shape=None)
+    objective = cma_stage.Objective(exps, DEMO.search, Forward(Store(tmp_path / "ids"), simulator=SIM), None)
+    ids = {cma_stage._stage_id(objective, generations=g, **kw) for g in (3, 3.0, np.int64(3), 3 + 3 / 7)}
+    assert len(ids) == 2  # whole generations keep the ids they always had, however the number is typed
+
+
 def test_ipop_restarts_keep_the_budget_the_best_and_resume(tmp_path, monkeypatch):
     exps = _footage(Store(tmp_path / "truth"), setups=((30, 50),))
     plain = _stage(exps, Store(tmp_path / "plain"), 30)  # STALL_DRAWS = 20 generations: no restart on this toy

@@ -1,8 +1,8 @@
-"""``virheo study design-outcome``: does the recommended second setup give a better estimate? arms at equal CPU budget
+"""``virheo study design-outcome``: does the recommended second setup give a better estimate? arms at equal budget
 
 Materials drawn half runny, half thick pastes, a random first setup each; footage emulated with a finer model; stage
 1 shared; each arm (information, perpendicularity, eig, largest, random x2, repeat) picks a second setup, and stage
-2 on both setups gets the same CPU budget, the criterion's own simulations included. Outcome: the flow-curve error
+2 on both setups gets the same simulation work, the criterion's own simulations included. Outcome: the flow-curve error
 over 1-100 1/s (and E_rel); each arm against random and perpendicularity by a paired Wilcoxon test and a bootstrap
 interval. Pre-registered in docs/uncertainty.md. Writes design_outcome.json and .md. Resumes from its store and
 finished cases.
@@ -27,8 +27,9 @@ def register(study_subparsers) -> None:
     p.add_argument("--criterion-preset", default=None, choices=PRESET_NAMES, metavar="NAME",
                    help="the information criterion's model (default: its own, demo)")
     p.add_argument("--stage-1-generations", type=integer, default=12, metavar="G", help="stage 1's generations (12)")
-    p.add_argument("--budget-cpu-s", type=real, default=150.0, metavar="S",
-                   help="CPU seconds of each arm's stage 2, the criterion's simulations included (default 150)")
+    p.add_argument("--budget-particle-steps", type=real, default=None, metavar="W",
+                   help="each arm's simulation work after stage 1 in particles x time steps, the criterion's simulations "
+                        "and stage 2's warm start included (default: the pre-registered 3e9)")
     p.add_argument("--posteriors", type=integer, default=4, metavar="P",
                    help="materials (half runny, half pastes) whose arms get the posterior outcome (the Herschel-Bulkley "
                         "posterior of `virheo report --laws herschel-bulkley`), seed 0 (default 4)")
@@ -45,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     with open_run(args) as run:
         result = run_study(run.out, materials=args.materials, seeds=args.seeds, seed=args.seed, preset=args.preset,
                            footage_model=footage, criterion_preset=args.criterion_preset,
-                           stage_1_generations=args.stage_1_generations, budget_cpu_s=args.budget_cpu_s,
+                           stage_1_generations=args.stage_1_generations, budget_particle_steps=args.budget_particle_steps,
                            posteriors=args.posteriors,
                            simulator=simulator(), forward=run.forward, progress=run.progress)
         simulated = run.forward.simulations_run

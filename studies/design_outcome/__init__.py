@@ -10,9 +10,10 @@ Per material (:func:`draw`: half runny, half thick pastes, each with a random fi
 3. **each arm's second setup** from stage 1's estimate (:data:`ARMS`): ``information`` (the default criterion at
    its own model), ``perpendicularity`` and ``eig`` (the published Theta map), ``largest`` (70x70 mm), ``random``
    (two draws per material, the same for every seed) and ``repeat`` (setup 1 again: the null);
-4. **equal budget**: stage 2 (both setups, warm-started from stage 1) gets ``budget_cpu_s`` CPU seconds minus what the
-   criterion simulated, as whole generations of POPSIZE candidates at the measured CPU seconds per simulation of
-   the two setups (:func:`stage_2_generations`);
+4. **equal budget**: every arm gets ``budget_particle_steps`` of simulation work (particles x time steps, the same on
+   every machine) after stage 1, the criterion's own simulations and stage 2's warm start included; stage 2 (both
+   setups, warm-started from stage 1) gets the candidate draws that fit in the rest (:func:`stage_2_draws`), a
+   partial last generation included;
 5. **outcomes**: the flow-curve error against the truth over 1-100 1/s (:func:`similarity.space.flow_curve_error`,
    primary), E_rel, the CPU seconds spent; after every case, for :func:`posterior_materials` and seed 0, each arm's
    posterior (`virheo report`'s analysis of the two-setup run, filmed into ``posterior/mNN_ARM/``): the 90 % flow
@@ -76,14 +77,20 @@ def random_setups(seed: int, index: int, first: Setup) -> list[Setup]:
     return out
 
 
-def stage_2_generations(budget_cpu_s: float, criterion_cpu_s: float, t_first: float, t_second: float) -> int:
-    """Whole generations of POPSIZE candidates on both setups that fit in the budget left after the criterion, at
-    least 1."""
+BUDGET_PARTICLE_STEPS = 3.0e9  # each arm's work after stage 1 (pre-registered: 150 CPU s at 20 M particle-steps/s)
+
+
+def stage_2_draws(budget: float, criterion: float, c_first: float, c_second: float) -> int:
+    """Candidate draws of stage 2 that fit in ``budget`` (particle-steps) after the criterion's simulations and the
+    warm start (POPSIZE of stage 1's candidates simulated in the arm's setup), each draw simulating both setups (work
+    ``c_first`` + ``c_second``); at least one generation."""
     from similarity.cma_stage import POPSIZE
 
-    per_generation = POPSIZE * (t_first + t_second)
-    left = budget_cpu_s - criterion_cpu_s
-    return max(1, int(math.floor(left / per_generation))) if per_generation > 0 else 1
+    left = budget - criterion - POPSIZE * c_second
+    per_draw = c_first + c_second
+    if not (per_draw > 0 and math.isfinite(left)):
+        raise ValueError(f"no measured work to budget with (setup 1: {c_first}, second setup: {c_second})")
+    return max(POPSIZE, int(math.floor(left / per_draw)))
 
 
 POSTERIORS = 4  # materials with a posterior outcome (pre-registered)
@@ -132,8 +139,8 @@ class DesignOutcome(Study):
 
     def after_cases(self, records, *, forward, progress=None) -> None:
         """The posterior outcome of every arm of seed 0 for :func:`posterior_materials`, one file each.  Arms whose
-        two-setup runs are the same (the same second setup, stage-2 generations and estimate: e.g. three arms that
-        picked 70x70 mm) share one analysis, which is deterministic."""
+        two-setup runs are the same (the same second setup, stage-2 draws and estimate: e.g. three arms that picked
+        70x70 mm) share one analysis, which is deterministic; an arm without an estimate has none."""
         from dataclasses import replace
 
         from mpm.files import read_json, write_json
@@ -145,8 +152,10 @@ class DesignOutcome(Study):
                 continue
             done: dict = {}  # the same run -> its outcome
             for a in r.arms:
+                if a.estimate is None:
+                    continue
                 path = self.out / "posterior" / f"m{r.material_index:02d}_{a.arm}.json"
-                run = (a.second_setup, a.generations, tuple(a.estimate.as_array()))
+                run = (a.second_setup, a.draws, tuple(a.estimate.as_array()))
                 if path.is_file():
                     done.setdefault(run, PosteriorOutcome.from_dict(read_json(path)))
                     continue
@@ -204,16 +213,20 @@ class DesignOutcome(Study):
         return None
 
 
-def _cpu(result) -> float:
-    cpu = result.stats.get("cpu_s") if result.stats else None
-    return float(cpu if cpu is not None else result.wall_seconds)
+def _work(result) -> float:
+    """Particle-steps of one simulation (ValueError when it failed: no work to budget with)."""
+    steps = result.particle_steps if result.ok else None
+    if steps is None:
+        raise ValueError(f"a simulation at stage 1's estimate failed ({result.error or 'no work recorded'})")
+    return steps
 
 
 def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> OutcomeRecord:
     """Stage 1 and every arm of one case."""
     from similarity.simulated_design import SIMULATION_PRESET, rank_by_simulation
-    from similarity.emulation import emulate
+    from similarity.emulation import emulate, film
     from similarity.estimate import estimate, get_preset
+    from similarity.cma_stage import POPSIZE
     from similarity.information import SIMULATIONS_PER_SETUP
     from similarity.presets import filming
     from similarity.proposers import Eig, Perpendicularity
@@ -221,15 +234,18 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
     t0 = time.perf_counter()
     preset = get_preset(config["preset"])
     footage_model = ForwardModel(*config["footage_model"])
-    film = filming(preset, footage_model, "outcome-footage")
+    shoot = filming(preset, footage_model, "outcome-footage")
     shots: dict = {}
 
     def film_all(setups) -> None:
-        """Footage of every setup not filmed yet, in one batch: the workers share the footage model's long runs."""
+        """Footage of every setup not filmed yet, simulated in one batch (the workers share the footage model's long
+        runs), then written as experiment folders and read back, as a user's footage is (the camera as its file
+        gives it, so that the posterior outcome's run of the same folders finds every simulation in the store)."""
         todo = list({str(s): s for s in setups if str(s) not in shots}.values())
         if todo:
-            shots.update((str(s), e) for s, e in zip(todo, emulate(case.truth, todo, density=DENSITY, preset=film,
-                                                                        forward=forward)))
+            emulate(case.truth, todo, density=DENSITY, preset=shoot, forward=forward)
+            shots.update((str(s), film(case.truth, s, case.folder / "footage", preset=shoot, forward=forward,
+                                       density=DENSITY)) for s in todo)
 
     def footage(setup: Setup):
         film_all([setup])
@@ -244,10 +260,10 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
                   progress=progress)
     m1 = s1.material
 
-    def cpu_at(setup: Setup) -> float:
-        return _cpu(forward.results(m1, [footage(setup)], preset.search)[0])
+    def work_at(setup: Setup) -> float:
+        return _work(forward.results(m1, [footage(setup)], preset.search)[0])
 
-    picks: list[tuple[str, Setup, str | None, float]] = []  # arm, setup, fallback, criterion CPU s
+    picks: list[tuple[str, Setup, str | None, float]] = []  # arm, setup, fallback, criterion's particle-steps
     for arm in ARMS:
         fallback, cost = None, 0.0
         try:
@@ -255,7 +271,7 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
                 ranking = rank_by_simulation(m1, [case.first], preset=config["criterion_preset"] or SIMULATION_PRESET,
                                              forward=forward)
                 setup = ranking.best()[0]
-                cost = SIMULATIONS_PER_SETUP * sum(f.cpu_seconds for f in ranking.facts.values())
+                cost = SIMULATIONS_PER_SETUP * sum(f.particle_steps for f in ranking.facts.values())
             elif arm == "perpendicularity":
                 setup = Perpendicularity("reference")(m1, [case.first])
             elif arm == "eig":
@@ -273,18 +289,23 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
         picks.append((arm, Setup(setup.width_mm, setup.height_mm), fallback, cost))
 
     film_all([setup for _, setup, _, _ in picks])
-    t_first = cpu_at(case.first)
+    c_first = work_at(case.first)
     runs = []
     for arm, setup, fallback, cost in picks:
         t1 = time.perf_counter()
-        t_second = cpu_at(setup)
-        g2 = stage_2_generations(config["budget_cpu_s"], cost, t_first, t_second)
         before = forward.simulations_run
-        est = estimate([first, footage(setup)], preset=preset, seed=seed, forward=forward, generations=[g1, g2],
-                       n_setups=2, propose=None, progress=progress)
-        runs.append(ArmRun(arm, str(setup), fallback, cost, t_first, t_second, g2, est.stages[0].material == m1,
-                           est.material,
-                           flow_curve_error(case.truth, est.material), e_rel(case.truth, est.material),
+        try:
+            c_second = work_at(setup)
+            draws = stage_2_draws(config["budget_particle_steps"], cost, c_first, c_second)
+            est = estimate([first, footage(setup)], preset=preset, seed=seed, forward=forward,
+                           generations=[g1, draws / POPSIZE], n_setups=2, propose=None, progress=progress)
+        except (ValueError, RuntimeError) as exc:  # pre-registered: a missing outcome for this arm and case
+            runs.append(ArmRun(arm, str(setup), fallback, cost, c_first, math.nan, 0, False, None, math.nan,
+                               math.nan, forward.simulations_run - before, time.perf_counter() - t1,
+                               failed=str(exc).splitlines()[0]))
+            continue
+        runs.append(ArmRun(arm, str(setup), fallback, cost, c_first, c_second, draws, est.stages[0].material == m1,
+                           est.material, flow_curve_error(case.truth, est.material), e_rel(case.truth, est.material),
                            forward.simulations_run - before, time.perf_counter() - t1))
     return OutcomeRecord(config, case.index, case.seed_index, case.truth, str(case.first), m1,
                          flow_curve_error(case.truth, m1), e_rel(case.truth, m1), runs, time.perf_counter() - t0)
@@ -292,9 +313,11 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
 
 def posterior_outcome(record: OutcomeRecord, arm: ArmRun, config: dict, folder: Path, *, forward
                       ) -> PosteriorOutcome:
-    """Film the arm's two setups into ``folder``, estimate there as the case did (the store serves it), write the
-    run's result.json and analyse it as `virheo report --laws herschel-bulkley` does."""
+    """Film the arm's two setups into ``folder``, estimate there as the case did (read back from folders as the
+    case's footage was: the store serves every simulation), write the run's result.json and analyse it as
+    `virheo report --laws herschel-bulkley` does."""
     from mpm.files import write_json
+    from similarity.cma_stage import POPSIZE
     from similarity.emulation import film
     from similarity.estimate import estimate, get_preset
     from similarity.posterior import analyse
@@ -306,7 +329,7 @@ def posterior_outcome(record: OutcomeRecord, arm: ArmRun, config: dict, folder: 
     setups = [Setup.parse(record.first_setup), Setup.parse(arm.second_setup)]
     experiments = [film(record.truth, s, folder, preset=shoot, forward=forward, density=DENSITY) for s in setups]
     est = estimate(experiments, preset=preset, seed=int(record.seed_index), forward=forward,
-                   generations=[config["stage_1_generations"], arm.generations], n_setups=2, propose=None)
+                   generations=[config["stage_1_generations"], arm.draws / POPSIZE], n_setups=2, propose=None)
     write_json(folder / "result.json", est.to_dict() | {
         "folders": [str(Path(e.path).resolve()) for e in experiments], "simulator": config["simulator"],
         "truth": record.truth.to_dict(), "e_rel": e_rel(record.truth, est.material)})
@@ -315,24 +338,26 @@ def posterior_outcome(record: OutcomeRecord, arm: ArmRun, config: dict, folder: 
     lo, hi = summary.flow_band["5"][i], summary.flow_band["95"][i]
     true = float(record.truth.stress(summary.flow_band["shear_rate"][i]))
     return PosteriorOutcome(record.material_index, arm.arm, [str(s) for s in setups], est.material,
-                            summary.band_width(10.0), bool(lo <= true <= hi), time.perf_counter() - t0)
+                            summary.band_width(10.0), bool(lo <= true <= hi), time.perf_counter() - t0,
+                            est.material == arm.estimate)
 
 
 def run_study(out, *, materials: int = 8, seeds: int = 2, seed: int = 62, preset: str = "survey",
               footage_model: ForwardModel = ForwardModel(1.26, 2), criterion_preset: str | None = None,
-              stage_1_generations: int = 12, budget_cpu_s: float = 150.0, posteriors: int = POSTERIORS,
+              stage_1_generations: int = 12, budget_particle_steps: float | None = None, posteriors: int = POSTERIORS,
               simulator: str | None = None, forward, progress=None) -> dict:
     """Run (or resume) the study in ``out`` case by case, then the posterior outcomes of ``posteriors`` materials;
     returns what ``design_outcome.json`` holds."""
     from similarity.estimate import get_preset
 
-    if materials < 2 or seeds < 1 or stage_1_generations < 1 or not budget_cpu_s > 0:
-        raise ValueError("--materials >= 2, --seeds >= 1, --stage-1-generations >= 1 and --budget-cpu-s > 0")
+    budget_particle_steps = BUDGET_PARTICLE_STEPS if budget_particle_steps is None else budget_particle_steps
+    if materials < 2 or seeds < 1 or stage_1_generations < 1 or not budget_particle_steps > 0:
+        raise ValueError("--materials >= 2, --seeds >= 1, --stage-1-generations >= 1 and --budget-particle-steps > 0")
     if forward.store is None:
         raise ValueError("the outcome study needs a simulation store (stage 1 is shared by the arms through it)")
     config = {"materials": int(materials), "seeds": int(seeds), "seed": int(seed), "preset": get_preset(preset).name,
               "footage_model": [footage_model.cell_mm, footage_model.ppc], "criterion_preset": criterion_preset,
-              "stage_1_generations": int(stage_1_generations), "budget_cpu_s": float(budget_cpu_s),
+              "stage_1_generations": int(stage_1_generations), "budget_particle_steps": float(budget_particle_steps),
               "simulator": simulator, "arms": list(ARMS)}
     if not 0 <= posteriors <= materials:
         raise ValueError(f"--posteriors {posteriors} must be within 0..--materials")

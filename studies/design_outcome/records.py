@@ -15,18 +15,19 @@ class ArmRun(JsonRecord):
     arm: str  # "random_0", "random_1" for the random draws
     second_setup: str
     fallback: str | None  # why the criterion could not propose (the first random draw was taken), or None
-    criterion_cpu_s: float
-    t_first_s: float  # CPU seconds of one simulation of setup 1 at the estimation model, at stage 1's estimate
-    t_second_s: float
-    generations: int  # of stage 2
+    criterion_particle_steps: float  # the criterion's own simulations' work (particles x time steps)
+    c_first: float  # particle-steps of one simulation of setup 1 at the estimation model, at stage 1's estimate
+    c_second: float  # the same in the arm's setup
+    draws: int  # stage 2's candidate draws (studies.design_outcome.stage_2_draws)
     stage_1_shared: bool  # its stage 1 is the case's stage 1 (served by the store)
-    estimate: Material
-    flow_error: float
+    estimate: Material | None  # None: the arm has no estimate in this case (``failed`` says why)
+    flow_error: float  # NaN without an estimate
     e_rel: float
     simulations: int
     wall_seconds: float
+    failed: str | None = None  # why stage 2 could not run (every simulation failed, no work measured), or None
 
-    READERS = {"estimate": lambda d: Material(**d)}
+    READERS = {"estimate": lambda d: Material(**d)}  # JSON keeps NaN as null: verdict.per_material reads it
 
 
 @dataclass
@@ -65,6 +66,8 @@ class ArmSummary(JsonRecord):
     median_e_rel: float
     per_material: list  # flow-curve error per material, averaged over seeds and draws
     against: dict  # reference -> Comparison
+    fallbacks: int = 0  # runs whose criterion could not propose (the first random draw was taken)
+    failed: int = 0  # runs without an estimate (left out of the averages)
 
     READERS = {"against": lambda d: {k: Comparison.from_dict(v) for k, v in d.items()}}
 
@@ -93,5 +96,6 @@ class PosteriorOutcome(JsonRecord):
     band_width_10: float  # 95th over 5th percentile stress of the 90 % flow band at 10 1/s
     truth_inside_10: bool  # the true stress at 10 1/s lies within that band
     wall_seconds: float
+    same_estimate: bool = True  # its estimate is the case's arm's (the store served the same run)
 
     READERS = {"estimate": lambda d: Material(**d)}
