@@ -4,8 +4,10 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mpm.params import Material
@@ -62,6 +64,17 @@ def test_scoring_counts_resolved_right_and_decisively_wrong():
     assert (t.resolved, t.right, t.decisively_wrong, t.unresolved_by_law) == (3, 2, 0, {"herschel-bulkley": 1})
     assert holds(QUESTIONS[0], hb) and not holds(QUESTIONS[0], pl) and holds(QUESTIONS[1], pl)
     assert s.most_probable_right == 4
+    # the thresholds are ln 10 and ln 100, inclusive; a question with nothing resolved does not meet the target
+    edge = summarise([_record("herschel-bulkley", hb, np.log(10.0), 0.0), _record("power-law", pl, np.log(100.0), 0.0)])
+    assert (edge.questions[0].resolved, edge.questions[0].decisively_wrong) == (2, 1)
+    assert edge.questions[1].resolved == 0 and edge.questions[1].right_share is None and not edge.questions[1].passed
+    # the emulator's checks: a case with a failed one is scored like the others and counted
+    failed = {"posterior": {"passed": True}, "laws": {"passed": False}}
+    checked = [replace(r, checks=c) for r, c in zip(recs, (failed, {"posterior": {"passed": True}, "laws": None},
+                                                           None, failed))]
+    assert [r.trusted for r in checked] == [False, True, None, False]
+    c = summarise(checked)
+    assert c.untrusted == 2 and c.questions == s.questions
 
 
 def _study(out, log):
@@ -82,6 +95,9 @@ def test_quick_study_runs_and_resumes_without_simulating(tmp_path):
         assert [v["question"] for v in c["evidence"]["verdicts"]] == ["yield stress", "shear thinning"]
         assert sum(c["evidence"]["probabilities"].values()) == pytest.approx(1.0)
     assert sum(c["simulations_run"] for c in res["cases"]) == len(simulated)
+    for c in res["cases"]:  # each case keeps whether its emulator passed its checks, and the table says so
+        assert set(c["checks"]) == {"posterior", "laws"} and LawRecord.from_dict(c).trusted is not None
+    assert res["failed"] == [] and "| emulator checks |" in (out / "laws.md").read_text()
     assert "| yield stress | 2 |" in (out / "laws.md").read_text() and (out / "laws.png").stat().st_size > 5000
     assert "target" in proc.stdout
     (out / "cases" / "case_01" / "case.json").unlink()  # killed before its record: nothing simulated again

@@ -1,5 +1,5 @@
 """Does the recommended second setup give a better estimate?  Each design arm's second setup judged by the two-setup
-estimate it yields, on footage of a finer model, at equal CPU budget (pre-registered in docs/uncertainty.md,
+estimate it yields, on footage of a finer model, at equal simulation work (pre-registered in docs/uncertainty.md,
 "Outcome study").
 
 Per material (:func:`draw`: half runny, half thick pastes, each with a random first setup) and CMA-ES seed:
@@ -271,7 +271,7 @@ def run_case(case: OutcomeCase, config: dict, *, forward, progress=None) -> Outc
                 ranking = rank_by_simulation(m1, [case.first], preset=config["criterion_preset"] or SIMULATION_PRESET,
                                              forward=forward)
                 setup = ranking.best()[0]
-                cost = SIMULATIONS_PER_SETUP * sum(f.particle_steps for f in ranking.facts.values())
+                cost = SIMULATIONS_PER_SETUP * sum(f.particle_steps or 0.0 for f in ranking.facts.values())
             elif arm == "perpendicularity":
                 setup = Perpendicularity("reference")(m1, [case.first])
             elif arm == "eig":
