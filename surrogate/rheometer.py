@@ -197,8 +197,9 @@ def fit_herschel_bulkley(curve: FlowCurve, lo: float = RELIABLE_RANGE[0], hi: fl
     that ``law`` fixes (mpm.laws.LAWS: bingham n = 1, power-law sigma_y = 0, newtonian both) held.
 
     Unknowns (log10 eta, n, sigma_y) with bounds eta 1e-8..1e6 Pa s^n, n 0.05..2, 0 <= sigma_y <= the
-    smallest stress in the window; several starts (no, half and most of the lowest stress as yield
-    stress), the best is kept.
+    largest stress in the window (no law with eta >= 0 fits below its yield stress; the smallest stress would hold
+    a law with n held, e.g. Bingham's, at the bound and make its AIC/BIC worse than its best fit); several starts
+    (no, half and most of the lowest stress as yield stress), the best is kept.
     """
     from mpm.laws import LAWS
 
@@ -224,7 +225,8 @@ def fit_herschel_bulkley(curve: FlowCurve, lo: float = RELIABLE_RANGE[0], hi: fl
         v = full(x)
         return np.log10(Material(10.0 ** v[0], v[1], v[2]).stress(rate)) - target
 
-    lower, upper, scale = np.array([-8.0, 0.05, 0.0]), np.array([6.0, 2.0, s_min]), np.array([1.0, 0.1, max(s_min, 1e-3)])
+    lower, upper = np.array([-8.0, 0.05, 0.0]), np.array([6.0, 2.0, float(stress.max())])
+    scale = np.array([1.0, 0.1, max(s_min, 1e-3)])
     best = None
     for frac in ((0.0,) if 2 in held else (0.0, 0.5, 0.9)):
         sig0 = frac * s_min

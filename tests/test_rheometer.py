@@ -59,6 +59,25 @@ def test_fit_is_good_and_a_minimum(curves):
             assert log_stress_rms(nudged, c) >= fit.rms_log10 - 1e-12
 
 
+def test_every_laws_fit_is_its_best_not_a_bound(curves):
+    """Each law's fit (its held parameters fixed) is a minimum of the log-stress RMS over its free parameters: nudging
+    any of them makes it no better, so its AIC/BIC are its best fit's (on these shear-thinning curves Bingham's
+    yield stress lies above the smallest stress, where a bound at the smallest stress held it)."""
+    from mpm.laws import LAWS
+
+    for c in curves:
+        for law, held in LAWS.items():
+            fit = fit_herschel_bulkley(c, law=law)
+            m = fit.material
+            free = [k for k in ("eta", "n", "sigma_y") if k not in held]
+            for k in free:
+                for f in (1.01, 0.99):
+                    nudged = Material(**{**m.to_dict(), k: getattr(m, k) * f})
+                    assert log_stress_rms(nudged, c) >= fit.rms_log10 - 1e-12, (c.material_name, law, k, f)
+        bingham = fit_herschel_bulkley(c, law="bingham").material
+        assert bingham.sigma_y > c.shear_stress[c.window()].min()
+
+
 def test_log_stress_rms_definition(curves):
     c = curves[0]
     m = Material(1.0, 0.6, 1.0)
