@@ -134,7 +134,7 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
                       f"{validation.rmse:.2e} on the {validation.n_test} within reach of the best (their range "
                       f"{validation.loss_range:.2e}); noise: N_eff {noise.n_eff:.0f}, s^2 {noise.variance:.2e}"))
         key = digest({"X": Xf.round(12).tolist(), "y": yf.tolist(), "noise": noise.to_dict(), "seed": seed,
-                      "nwalkers": nwalkers})[:16]
+                      "nwalkers": nwalkers, "box": [np.asarray(lo).tolist(), np.asarray(hi).tolist()]})[:16]
         post = sample(box_log_posterior(noise, emu, lo, hi), x_hat, nwalkers=nwalkers, seed=seed,
                       min_ess=min_ess, max_steps=max_steps, backend=backend, backend_name=f"mcmc-{key}",
                       progress=progress)

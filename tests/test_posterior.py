@@ -428,3 +428,26 @@ def test_a_laws_check_whose_every_draw_failed_fails_without_a_face_figure():
     noise = NoiseScale(n_pixels=16_000, n_eff=16.0, loss_at_optimum=0.005, discretisation=0.0, emulator=0.0, frames=16)
     check = posterior_check(noise, Flat(), np.full((4, 3), 0.5), np.full(4, np.nan), rounds=1, groups=np.arange(4) % 2)
     assert not check.passed and check.failed == 4 and check.worst_face_nats is None
+
+
+def test_a_saved_chain_resumes_only_in_its_own_box(tmp_path):
+    """The same training set in a smaller and a larger box: each box samples its own chain from the same backend
+    file (a chain of the smaller box resumed in the larger would keep the smaller box's cut)."""
+    import h5py
+
+    from similarity.emulator_check import checked_posterior
+    from similarity.likelihood import NoiseScale
+
+    rng = np.random.default_rng(1)
+    X = rng.uniform(0.2, 0.8, (30, 3))
+    y = 0.005 + 0.02 * np.sum((X - 0.5) ** 2, axis=1)
+    noise = NoiseScale(n_pixels=16_000, n_eff=16.0, loss_at_optimum=0.005, discretisation=0.0, emulator=0.0, frames=16)
+    path = tmp_path / "posterior.h5"
+    kw = dict(draws=0, seed=0, nwalkers=16, min_ess=100, max_steps=2000, backend=path)
+    small, _, _ = checked_posterior(None, X, y, np.full(3, 0.5), np.full(3, 0.45), np.full(3, 0.55), noise,
+                                    split=np.random.default_rng(0), **kw)
+    large, _, _ = checked_posterior(None, X, y, np.full(3, 0.5), np.full(3, 0.2), np.full(3, 0.8), noise,
+                                    split=np.random.default_rng(0), **kw)
+    with h5py.File(path, "r") as f:
+        assert len([k for k in f if k.startswith("mcmc-")]) == 2
+    assert small.posterior.samples.max() <= 0.55 and large.posterior.samples.max() > 0.55
