@@ -15,11 +15,13 @@ models:
   stencil around it (19 simulations), the PSD-projected Hessian (:func:`similarity.information.setup_hessian`);
 * **per (material, model)**: each candidate's gain after setup 1 (:func:`similarity.information.log_det_gain`),
   the argmax, the trace ratio tr H(70x70) / tr H(20x20), the CPU seconds per simulation;
-* **against the finest model** (the finest with every candidate's result for some material; per material that has
-  them): Spearman's rank correlation of the gains and whether the
-  argmax is the same.  A model *matches* the finest when on every such material the argmax is the same and
-  Spearman >= :data:`MATCH_SPEARMAN`; the summary names the cheapest matching model (by CPU seconds per
-  simulation), the one the criterion should use.
+* **against the finest model** (the finest with any result; per material that has it): Spearman's rank correlation
+  of the gains over the candidates both have and whether the argmax is the same.  A model *matches* the finest when
+  on every such material the argmax is the same and Spearman >= :data:`MATCH_SPEARMAN`; the summary names the
+  cheapest matching model (by CPU seconds per simulation), the one the criterion should use, only once every
+  material that has the finest model has all its candidates there (until then ``pending`` names those that lack
+  some: a partial finest model gives no verdict, and neither does a coarser one in its stead).  A model whose cases
+  came from more than one engine is not compared.
 
 Cases are kept in ``cases/<material>/<model>/<setup>/case.json``; the study's configuration does not hold the models,
 so runs with different ``--models`` (and engines: each case records the engine that ran it) add to one ``--out``,
@@ -28,7 +30,7 @@ and the summary is over every finished case there.  Writes ``design_resolution.j
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -133,11 +135,13 @@ class ModelScores(JsonRecord):
 
 @dataclass
 class ResolutionSummary(JsonRecord):
-    finest: str | None  # the finest model with every candidate's result for at least one material
+    finest: str | None  # the finest model with any result
     materials: dict  # slug -> {model label -> ModelScores}
     matching: list  # models matching the finest on every material that has it, cheapest first
     cheapest_matching: str | None
     compared_materials: list  # slugs with the finest model's results
+    pending: list = field(default_factory=list)  # of those, the ones still lacking candidates there: no verdict yet
+    mixed_engines: list = field(default_factory=list)  # models whose cases came from more than one engine (left out)
 
     READERS = {"materials": lambda d: {m: {k: ModelScores.from_dict(v) for k, v in ms.items()} for m, ms in d.items()}}
 
@@ -154,7 +158,13 @@ def model_scores(recs: list[SetupRecord], probe: Probe) -> ModelScores | None:
         return None
     cands = [str(s) for s in setups_of(probe)[1:] if str(s) in by_setup]
     hessians = [None if by_setup[c].hessian is None else np.array(by_setup[c].hessian) for c in cands]
-    gains = I.realised_gains(np.array(first.hessian), hessians) if cands else np.array([])
+    try:
+        gains = I.realised_gains(np.array(first.hessian), hessians) if cands else np.array([])
+    except ValueError:  # setup 1 carries no information at this model: each candidate on its own (as design does)
+        tops = [float(np.linalg.eigvalsh(h)[-1]) for h in hessians if h is not None]
+        eps = I.RIDGE * max(tops) if tops and max(tops) > 0 else None
+        gains = (I.realised_gains(np.array(first.hessian), hessians, eps=eps) if eps is not None
+                 else np.full(len(cands), np.nan))
     ok = np.isfinite(gains)
     trace = {s: np.trace(np.array(r.hessian)) for s, r in by_setup.items() if r.hessian is not None}
     small, large = trace.get("20x20"), trace.get("70x70")
@@ -240,26 +250,27 @@ class DesignResolution(Study):
                     scores[label] = s
             if scores:
                 per[probe.slug] = scores
-        labels = {m for ms in per.values() for m in ms}
-        complete = {(slug, m) for slug, ms in per.items() for m, sc in ms.items()
-                    if len(sc.setups) == len(setups_of(_probe(slug))) - 1}
-        finest = min({m for _, m in complete}, key=lambda m: (cells[m], -ppcs[m])) if complete else None
-        compared = [slug for slug in per if (slug, finest) in complete]
+        mixed = {r.model for r in records if len({q.engine for q in records if q.model == r.model}) > 1}
+        labels = {m for ms in per.values() for m in ms} - mixed
+        finest = min(labels, key=lambda m: (cells[m], -ppcs[m])) if labels else None
+        compared = [slug for slug in per if finest in per[slug]]
+        pending = [slug for slug in compared if len(per[slug][finest].setups) < len(setups_of(_probe(slug))) - 1]
         for slug in compared:
             for label, s in per[slug].items():
                 if label != finest:
                     s.spearman_vs_finest, s.argmax_as_finest = compare(s, per[slug][finest])
-        matching = [m for m in labels - {finest} if compared and all(
+        matching = [m for m in labels - {finest} if compared and not pending and all(
             m in per[slug] and per[slug][m].argmax_as_finest and (per[slug][m].spearman_vs_finest or -1) >= MATCH_SPEARMAN
             for slug in compared)]
         cost = {m: np.median([c for s in per if m in per[s] for c in [per[s][m].cpu_seconds_per_simulation]
                               if c is not None] or [np.inf]) for m in labels}
         matching.sort(key=lambda m: cost[m])
-        return ResolutionSummary(finest, per, matching, matching[0] if matching else None, compared)
+        return ResolutionSummary(finest, per, matching, matching[0] if matching else None, compared, pending,
+                                 sorted(mixed))
 
     def table(self, records, summary) -> str:
         lines = ["# The information criterion's measure against the model's resolution", "",
-                 f"Gains after setup 1 of the candidates; finest model with complete results: {summary.finest}; a model matches it with the "
+                 f"Gains after setup 1 of the candidates; finest model: {summary.finest}; a model matches it with the "
                  f"same argmax and Spearman >= {MATCH_SPEARMAN:g} on every material that has it "
                  f"({', '.join(summary.compared_materials) or 'none yet'}).", "",
                  "| material | setup 1 | model | engine | candidates | argmax | Spearman vs finest | same argmax | "
@@ -269,7 +280,12 @@ class DesignResolution(Study):
                 lines.append(f"| {slug} | {_probe(slug).first} | {label} | {s.engine} | {len(s.setups)} | {s.argmax} | "
                              f"{_fmt(s.spearman_vs_finest)} | {'' if s.argmax_as_finest is None else s.argmax_as_finest} "
                              f"| {_fmt(s.trace_ratio)} | {_fmt(s.cpu_seconds_per_simulation)} |")
-        lines += ["", f"Models matching {summary.finest}, cheapest first: {', '.join(summary.matching) or 'none'}.", "",
+        verdict = (f"Models matching {summary.finest}, cheapest first: {', '.join(summary.matching) or 'none'}." if
+                   not summary.pending else f"No verdict yet: {', '.join(summary.pending)} still lack candidates at "
+                   f"{summary.finest} (Spearman above on the candidates both models have).")
+        if summary.mixed_engines:
+            verdict += f" Left out, their cases from more than one engine: {', '.join(summary.mixed_engines)}."
+        lines += ["", verdict, "",
                   "Log det gain after setup 1, per candidate:", ""]
         names = [str(c) for c in CANDIDATES]
         lines += ["| material | model | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]

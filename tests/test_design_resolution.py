@@ -76,3 +76,40 @@ def test_cases_run_model_by_model_from_the_smallest_box_and_cover_every_setup(tm
     for m in models:
         areas = [c.setup.width_mm * c.setup.height_mm for c in planned if c.model == m]
         assert areas == sorted(areas)
+
+
+def _records(slug, label, cell, setups, scale=1.0, engine="native", first_scale=1.0):
+    """Synthetic cases: each setup's Hessian grows with its box (setup 1's times ``first_scale``)."""
+    probe = R._probe(slug)
+    out = []
+    for s in setups:
+        area = s.width_mm * s.height_mm / 400.0
+        h = np.diag([area, 0.5 * area, 0.2 * area]) * scale * (first_scale if str(s) == str(probe.first) else 1.0)
+        out.append(R.SetupRecord({}, slug, probe.material, label, cell, 1, engine, str(s), [0.0] * 18, h.tolist(), 1.0,
+                                 19, 1.0))
+    return out
+
+
+def test_a_partial_finest_model_gives_no_verdict_and_no_coarser_one_stands_in():
+    """While the finest model lacks candidates for a material that has it, the summary names that material as
+    pending and gives no cheapest matching model, although coarser models are complete; with every candidate it
+    gives the verdict.  A model whose cases came from two engines is left out; a setup 1 without information at a
+    model scores the candidates on their own instead of stopping the summary."""
+    study = R.DesignResolution("unused", {})
+    a, b = R.MATERIALS[0].slug, R.MATERIALS[1].slug
+    full = {slug: R.setups_of(R._probe(slug)) for slug in (a, b)}
+    coarse = [r for slug in (a, b) for r in _records(slug, "5mm-1p", 5.0, full[slug])]
+    partial = _records(a, "1.26mm-1p", 1.26, full[a]) + _records(b, "1.26mm-1p", 1.26, full[b][:4])
+    s = study.summary(coarse + partial)
+    assert s.finest == "1.26mm-1p" and s.compared_materials == [a, b] and s.pending == [b]
+    assert s.cheapest_matching is None and s.matching == []
+    assert s.materials[a]["5mm-1p"].spearman_vs_finest == pytest.approx(1.0)
+    done = coarse + _records(a, "1.26mm-1p", 1.26, full[a]) + _records(b, "1.26mm-1p", 1.26, full[b])
+    s = study.summary(done)
+    assert s.pending == [] and s.cheapest_matching == "5mm-1p"
+    mixed = done + _records(a, "2.5mm-1p", 2.5, full[a][:3]) + _records(a, "2.5mm-1p", 2.5, full[a][3:], engine="cuda")
+    s = study.summary(mixed)
+    assert s.mixed_engines == ["2.5mm-1p"] and "2.5mm-1p" not in s.matching and s.cheapest_matching == "5mm-1p"
+    stiff = [r for slug in (a, b) for r in _records(slug, "5mm-1p", 5.0, full[slug], first_scale=0.0)]
+    s = study.summary(stiff)
+    assert all(np.isfinite(g) for g in s.materials[a]["5mm-1p"].gains) and s.materials[a]["5mm-1p"].argmax == "70x70"

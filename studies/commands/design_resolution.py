@@ -38,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
         simulated = run.forward.simulations_run
     print((run.out / "design_resolution.md").read_text())
     s = result["summary"]
-    print(f"cheapest model matching {s['finest']}: {s['cheapest_matching'] or 'none'}; {simulated} simulations run "
+    verdict = (f"cheapest model matching {s['finest']}: {s['cheapest_matching'] or 'none'}" if not s["pending"] else
+               f"no verdict yet against {s['finest']}: {', '.join(s['pending'])} lack candidates there")
+    print(f"{verdict}; {simulated} simulations run "
           f"(the rest from the store), {result['wall_seconds']:.0f} s; report in {run.out}")
     return 0
