@@ -187,6 +187,16 @@ def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
     config = res["config"]
     with Forward(out / "store", workers=0, simulator="fake_forward:simulate") as forward:
         p = O.posterior_outcome(rec, arm, config, tmp_path / "post", forward=forward)
+        # the case's footage folders and the posterior's key the same simulations: the store serves the estimate
+        from mpm.experiment import load
+        from similarity.presets import get_preset
+
+        model = get_preset(config["preset"]).search
+        for setup in (rec.first_setup, "70x70"):
+            case_exp = load(out / "cases" / f"m{rec.material_index:02d}_s0" / "footage" / f"footage_{setup}")
+            post_exp = load(tmp_path / "post" / f"footage_{setup}")
+            assert (forward.request(arm.estimate, case_exp, model).key
+                    == forward.request(arm.estimate, post_exp, model).key)
     assert p.estimate == arm.estimate and p.same_estimate and p.setups == [rec.first_setup, "70x70"]
     from similarity.posterior_summary import read_posterior
 
