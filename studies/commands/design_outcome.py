@@ -29,7 +29,7 @@ def register(study_subparsers) -> None:
     p.add_argument("--stage-1-generations", type=integer, default=12, metavar="G", help="stage 1's generations (12)")
     p.add_argument("--budget-particle-steps", type=real, default=None, metavar="W",
                    help="each arm's simulation work after stage 1 in particles x time steps, the criterion's simulations "
-                        "and stage 2's warm start included (default: the pre-registered 3e9)")
+                        "and stage 2's warm start included (default: the pre-registered 6e9)")
     p.add_argument("--posteriors", type=integer, default=4, metavar="P",
                    help="materials (half runny, half pastes) whose arms get the posterior outcome (the Herschel-Bulkley "
                         "posterior of `virheo report --laws herschel-bulkley`), seed 0 (default 4)")

@@ -77,7 +77,7 @@ def random_setups(seed: int, index: int, first: Setup) -> list[Setup]:
     return out
 
 
-BUDGET_PARTICLE_STEPS = 3.0e9  # each arm's work after stage 1 (pre-registered: 150 CPU s at 20 M particle-steps/s)
+BUDGET_PARTICLE_STEPS = 6.0e9  # each arm's work after stage 1 (pre-registered: 70x70 mm gets 3 generations, below)
 
 
 def stage_2_draws(budget: float, criterion: float, c_first: float, c_second: float) -> int:
