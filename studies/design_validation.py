@@ -95,7 +95,8 @@ class OutcomeValidation(JsonRecord):
     interval_vs_random: list | None  # bootstrap 90 % interval of that median difference
     wilcoxon_p_vs_random: float | None
     verdict: str  # the study's verdict in words
-    recommended: str | None  # the arm the study supports (None: none beat random)
+    recommended: str | None  # the arm the study supports (None: none by its pass rule)
+    beat_random: list | None = None  # arms that beat random (p < 0.05); None: a file written before it was kept
 
 
 def outcome(name: str, path=OUTCOME_FILE) -> dict | None:
@@ -112,7 +113,7 @@ def outcome(name: str, path=OUTCOME_FILE) -> dict | None:
     return OutcomeValidation(arm, int(summary["materials"]), float(mine["median_flow_error"]),
                              None if rnd is None else float(rnd["median_flow_error"]), vs.get("median_difference"),
                              vs.get("interval"), vs.get("wilcoxon_p"), summary["verdict"],
-                             summary.get("recommended")).to_dict()
+                             summary.get("recommended"), summary.get("beat_random")).to_dict()
 
 
 def outcome_line(o: dict) -> str:
@@ -126,7 +127,10 @@ def outcome_line(o: dict) -> str:
             line += (f" (median paired difference {o['median_difference_vs_random']:+.3f}, 90 % interval "
                      f"[{lo:+.3f}, {hi:+.3f}], Wilcoxon p = {o['wilcoxon_p_vs_random']:.2g})")
     line += f"; the study's verdict: {o['verdict']}"
-    if o["recommended"] is None:
+    if o["recommended"] is None and o.get("beat_random"):
+        line += (f"\n  weak: the study recommends no criterion ({', '.join(o['beat_random'])} beat a random second "
+                 "setup without the lowest median error)")
+    elif o["recommended"] is None:
         line += "\n  weak: no criterion beat a random second setup on the estimate it gave"
     elif o["recommended"] != o["arm"]:
         line += f"\n  weak: the study supports {o['recommended']} instead"

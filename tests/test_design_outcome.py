@@ -77,7 +77,7 @@ def test_a_run_without_an_estimate_is_left_out_and_counted():
     assert s.arms["information"].against["random"].materials == 1
 
 
-def test_the_verdict_names_an_arm_that_beats_random_without_the_lowest_median():
+def test_the_verdict_names_an_arm_that_beats_random_without_the_lowest_median(tmp_path):
     def record(m, errors):
         arms = [O.ArmRun(a, "30x30", None, 0.0, 1.0, 1.0, 7, True, Material(1, 1, 1), e, e, 1, 0.0)
                 for a, e in errors.items()]
@@ -89,6 +89,15 @@ def test_the_verdict_names_an_arm_that_beats_random_without_the_lowest_median():
     s = O.verdict(recs)
     assert s.best == "largest" and s.recommended is None and not s.default_passes
     assert s.verdict.startswith("eig beats random") and "lowest median error: largest" in s.verdict
+    assert s.beat_random == ["eig"]
+    # `virheo design` does not call that "no criterion beat random"
+    from studies import design_validation as V
+
+    path = tmp_path / "design_outcome.json"
+    path.write_text(json.dumps({"config": {}, "summary": s.to_dict()}))
+    line = V.reliability_line(V.validation("eig", "reference", outcome_path=path))
+    assert "weak: the study recommends no criterion (eig beat a random second setup" in line
+    assert "no criterion beat a random" not in line
 
 
 def test_the_paired_test_and_the_pass_rule():
@@ -175,6 +184,8 @@ def test_quick_study_runs_every_arm_and_resumes_without_simulating(tmp_path):
     flow = O.per_material(recs)
     assert flow["random"][0] == pytest.approx(np.mean([a.flow_error for a in recs[0].arms if a.arm.startswith("random")]))
     assert res["summary"]["arms"]["information"]["per_material"] == [flow["information"][m] for m in (0, 1)]
+    table = (out / "design_outcome.md").read_text()
+    assert "| runs with the first random draw (criterion failed) | runs without an estimate |" in table
     before = log.read_text().splitlines()
     proc = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0 and log.read_text().splitlines() == before

@@ -185,7 +185,8 @@ class DesignOutcome(Study):
                  f"{summary.materials} materials, {summary.cases} cases. Flow-curve error: RMS of log10 stress over "
                  "1-100 1/s against the truth, per material averaged over the seeds (and the random draws).", "",
                  "| arm | median flow-curve error | median E_rel | vs random: median difference [90 % interval], "
-                 "Wilcoxon p | vs perpendicularity |", "|---|---:|---:|---|---|"]
+                 "Wilcoxon p | vs perpendicularity | runs with the first random draw (criterion failed) | runs without an "
+                 "estimate |", "|---|---:|---:|---|---|---:|---:|"]
         for arm, s in summary.arms.items():
             cells = []
             for ref in ("random", "perpendicularity"):
@@ -193,7 +194,8 @@ class DesignOutcome(Study):
                 cells.append("" if c is None or c.median_difference is None else
                              f"{c.median_difference:+.3f} [{c.interval[0]:+.3f}, {c.interval[1]:+.3f}], "
                              f"p = {c.wilcoxon_p:.3g}")
-            lines.append(f"| {arm} | {s.median_flow_error:.3f} | {s.median_e_rel:.3f} | {cells[0]} | {cells[1]} |")
+            lines.append(f"| {arm} | {s.median_flow_error:.3f} | {s.median_e_rel:.3f} | {cells[0]} | {cells[1]} | "
+                         f"{s.fallbacks} | {s.failed} |")
         lines += ["", f"Verdict: {summary.verdict}.", ""]
         post = self.posteriors()
         if post:

@@ -2,7 +2,7 @@
 outcome (:mod:`studies.design_outcome`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from mpm.files import JsonRecord
 from mpm.params import Material
@@ -79,8 +79,9 @@ class OutcomeSummary(JsonRecord):
     arms: dict  # arm -> ArmSummary
     best: str | None  # the arm of the lowest median flow-curve error
     default_passes: bool | None
-    recommended: str | None  # the arm the study supports (None: none beat random)
+    recommended: str | None  # the arm the study supports (None: none by the pass rule)
     verdict: str
+    beat_random: list = field(default_factory=list)  # arms (not random) whose flow-curve error beat random's, p < 0.05
 
     READERS = {"arms": lambda d: {k: ArmSummary.from_dict(v) for k, v in d.items()}}
 

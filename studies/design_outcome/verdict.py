@@ -66,15 +66,16 @@ def verdict(records: list[OutcomeRecord]) -> OutcomeSummary:
         vs_best = (compare(flow[DEFAULT_ARM], flow[best], best) if best != DEFAULT_ARM else None)
         no_worse = vs_best is None or (vs_best.interval is not None and vs_best.interval[0] <= 0.0)
         passes = beats_random(DEFAULT_ARM) and no_worse
+    winners = [a for a in arms if a != "random" and beats_random(a)]
     if passes:
         recommended, text = DEFAULT_ARM, f"the default, {DEFAULT_ARM}, passes: it beats random and is no worse than the best arm"
-    elif best is not None and best != "random" and beats_random(best):
+    elif best in winners:
         recommended, text = best, f"{best} wins: it beats random and has the lowest median flow-curve error"
     else:
         recommended = None
-        winners = [a for a in arms if a != "random" and beats_random(a)]
         text = ((f"{', '.join(winners)} beat{'s' if len(winners) == 1 else ''} random on the flow-curve error "
                  f"(p < 0.05) without the lowest median error, and the default does not pass" if winners else
                  "no arm beats random on the flow-curve error (p < 0.05)")
                 + (f"; the lowest median error: {best}" if best else ""))
-    return OutcomeSummary(len({r.material_index for r in records}), len(records), arms, best, passes, recommended, text)
+    return OutcomeSummary(len({r.material_index for r in records}), len(records), arms, best, passes, recommended, text,
+                          winners)
