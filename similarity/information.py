@@ -66,6 +66,14 @@ def ridge(h_done) -> float:
     return RIDGE * top
 
 
+def candidates_ridge(hessians) -> float | None:
+    """eps = RIDGE x the largest eigenvalue of the candidates' Hessians (None entries skipped), for when the setups
+    done carry no information: each candidate is then scored by what it pins down on its own; None when no candidate
+    has a positive eigenvalue either."""
+    tops = [float(np.linalg.eigvalsh(np.asarray(h, float))[-1]) for h in hessians if h is not None]
+    return RIDGE * max(tops) if tops and max(tops) > 0 else None
+
+
 def log_det_gain(h_done, h_new, eps: float | None = None) -> np.ndarray:
     """log det(H_done + H_new + eps I) - log det(H_done + eps I): minus twice the change of the Laplace ellipsoid's
     log-volume, for one H_done (3, 3) and candidates H_new (..., 3, 3); eps None: :func:`ridge`."""
@@ -200,11 +208,10 @@ def predicted_hessians(estimate, done, setups, *, preset, forward, fd_step: floa
     h_done, candidates = np.sum(hessians[:len(done)], axis=0), hessians[len(done):]
     eps = None
     if not np.linalg.eigvalsh(h_done)[-1] > 0:
-        tops = [float(np.linalg.eigvalsh(h)[-1]) for h in candidates if h is not None]
-        if not tops or not max(tops) > 0:
+        eps = candidates_ridge(candidates)
+        if eps is None:
             raise ValueError(f"the loss does not change around {estimate} in any setup, done or candidate: no setup "
                              "adds information at this estimate")
-        eps = RIDGE * max(tops)
         warnings.warn(f"the setups done carry no information at {estimate} (their loss does not change around it): "
                       "each candidate is scored by what it pins down on its own")
     return h_done, candidates, eps

@@ -161,8 +161,7 @@ def model_scores(recs: list[SetupRecord], probe: Probe) -> ModelScores | None:
     try:
         gains = I.realised_gains(np.array(first.hessian), hessians) if cands else np.array([])
     except ValueError:  # setup 1 carries no information at this model: each candidate on its own (as design does)
-        tops = [float(np.linalg.eigvalsh(h)[-1]) for h in hessians if h is not None]
-        eps = I.RIDGE * max(tops) if tops and max(tops) > 0 else None
+        eps = I.candidates_ridge(hessians)
         gains = (I.realised_gains(np.array(first.hessian), hessians, eps=eps) if eps is not None
                  else np.full(len(cands), np.nan))
     ok = np.isfinite(gains)
@@ -250,7 +249,10 @@ class DesignResolution(Study):
                     scores[label] = s
             if scores:
                 per[probe.slug] = scores
-        mixed = {r.model for r in records if len({q.engine for q in records if q.model == r.model}) > 1}
+        engines: dict = {}
+        for r in records:
+            engines.setdefault(r.model, set()).add(r.engine)
+        mixed = {m for m, e in engines.items() if len(e) > 1}
         labels = {m for ms in per.values() for m in ms} - mixed
         finest = min(labels, key=lambda m: (cells[m], -ppcs[m])) if labels else None
         compared = [slug for slug in per if finest in per[slug]]
