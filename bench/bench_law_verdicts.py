@@ -59,7 +59,7 @@ def _reported(out: Path) -> bool:
     return s.evidence is not None and s.estimate.to_dict() == result.get("estimate")
 
 
-def _run(name: str, argv: list) -> str | None:
+def _run(argv: list) -> str | None:
     """``virheo ARGV``; None when it succeeded, else why not (one line)."""
     from studies.cli import main as virheo
 
@@ -135,12 +135,12 @@ def main(argv=None) -> int:
         why = None
         if not done:
             t0 = time.perf_counter()
-            why = _run(name, ["estimate", *folders, "--out", str(out), "--preset", args.preset, "--workers",
+            why = _run(["estimate", *folders, "--out", str(out), "--preset", args.preset, "--workers",
                               str(args.workers), "--quiet"])
             wall["estimate_s"] = time.perf_counter() - t0
         if why is None and not _reported(out):
             t0 = time.perf_counter()
-            why = _run(name, ["report", str(out), "--workers", str(args.workers), "--new-simulations",
+            why = _run(["report", str(out), "--workers", str(args.workers), "--new-simulations",
                               str(args.new_simulations), "--quiet"])
             wall["report_s"] = time.perf_counter() - t0
         if why is not None:
