@@ -451,3 +451,20 @@ def test_a_saved_chain_resumes_only_in_its_own_box(tmp_path):
     with h5py.File(path, "r") as f:
         assert len([k for k in f if k.startswith("mcmc-")]) == 2
     assert small.posterior.samples.max() <= 0.55 and large.posterior.samples.max() > 0.55
+
+
+def test_the_emulators_fast_prediction_is_scikit_learns_bit_for_bit():
+    """MCMC calls the emulator's own kernel arithmetic; it must be scikit-learn's GP mean exactly, for a fresh fit, a
+    refit from kept hyperparameters and an isotropic-looking fit alike."""
+    from surrogate.emulator import LossEmulator
+
+    rng = np.random.default_rng(3)
+    X = rng.random((150, 3))
+    y = np.sum((X - 0.4) ** 2 * [1.0, 5.0, 0.2], axis=1) + 1e-3 * rng.standard_normal(150)
+    Q = rng.random((37, 3))
+    for emu in (LossEmulator(seed=2).fit(X, y), LossEmulator(seed=2).fit(X[:90], y[:90]),
+                LossEmulator(seed=1).fit(X, y, theta=LossEmulator(seed=1).fit(X, y).gp.kernel_.theta)):
+        reference = emu.trend.predict(Q) + emu.gp.predict(Q)
+        fast = emu.predict(Q)
+        assert np.array_equal(emu._signal(Q), emu.gp.kernel_.k1(Q, emu.gp.X_train_))
+        assert np.allclose(fast, reference, rtol=1e-13, atol=1e-16)
