@@ -158,10 +158,9 @@ class LossEmulator:
                                                random_state=self.seed).fit(X, resid)
         ridge = self.trend[1]
         self._coef, self._intercept = ridge.coef_, ridge.intercept_
-        self._X = self.gp.X_train_
         signal = self.gp.kernel_.k1  # ConstantKernel * RBF; the WhiteKernel adds nothing between distinct points
         self._scale, self._length = signal.k1.constant_value, np.asarray(signal.k2.length_scale, float)
-        self._X_scaled = self._X / self._length
+        self._X_scaled = self.gp.X_train_ / self._length
         return self
 
     @property
@@ -183,7 +182,7 @@ class LossEmulator:
     def _signal(self, X) -> np.ndarray:
         """The fitted signal kernel k1(X, X_train) = c exp(-|x - x'|^2_l / 2), computed as scikit-learn's RBF and
         ConstantKernel compute it (the same operations in the same order), with X_train / l kept from the fit."""
-        return np.full((len(X), len(self._X)), self._scale) * np.exp(
+        return np.full((len(X), len(self._X_scaled)), self._scale) * np.exp(
             -0.5 * cdist(X / self._length, self._X_scaled, metric="sqeuclidean"))
 
     def validate(self, X_train, y_train, X_test, y_test) -> Validation:

@@ -454,8 +454,9 @@ def test_a_saved_chain_resumes_only_in_its_own_box(tmp_path):
 
 
 def test_the_emulators_fast_prediction_is_scikit_learns_bit_for_bit():
-    """MCMC calls the emulator's own kernel arithmetic; it must be scikit-learn's GP mean exactly, for a fresh fit, a
-    refit from kept hyperparameters and an isotropic-looking fit alike."""
+    """MCMC calls the emulator's own kernel arithmetic: its kernel must be scikit-learn's bit for bit and its mean
+    scikit-learn's GP mean, for hyperparameters searched on a subset of the losses, on all of them, and kept from an
+    earlier fit."""
     from surrogate.emulator import LossEmulator
 
     rng = np.random.default_rng(3)
