@@ -5,7 +5,7 @@
 A Gaussian likelihood in the unit box, cut by the n = 1 and sigma_y = 0 faces (the case of a material near
 Bingham and the power law), with widths like a report's posterior (0.4 % to 3 % of the space): the exact ln Z of
 each law is a product of normal CDFs.  Prints, per law, the importance-sampling estimate's error against the exact
-value, its stated Monte Carlo error and its wall time (face posterior by emcee included), over ``--repeats`` seeds;
+value, its stated Monte Carlo error and its wall time (the face posterior on its grid included), over ``--repeats`` seeds;
 then the same for nested sampling (dynesty, 500 live points, dlogz 0.1; ultranest, 400 live points) where those
 packages are installed (they are not dependencies).
 """

@@ -100,6 +100,7 @@ class CheckedFit:
     check: PosteriorCheck | None
     X: np.ndarray  # the training set the emulator was fitted on (normalised materials, mean losses)
     y: np.ndarray
+    kernel: object  # the GP kernel as optimised (with its bounds), whose hyperparameters the emulator has
 
 
 def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, split, seed: int = 0, stage: int = 0,
@@ -112,7 +113,8 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
     posterior is sampled again, at most ``rounds`` times.  ``split``: the generator of the cross-validation's
     folds (:func:`emulator_error`); the draws are chosen by ``seed``, ``stage`` (the box) and the round.
     ``kernel``: a fitted GP kernel (an earlier fit's, on part of this training set) where the hyperparameters' one
-    optimisation starts (None: three starts); each retraining starts from the fit before it.
+    optimisation starts (None: three starts); a retraining after a failed check keeps the first fit's hyperparameters
+    (the draws it adds are few beside the training set: they move the fit where they lie, not its length scales).
     Returns the last :class:`CheckedFit` (its check describes its posterior; None with ``draws`` 0) and the
     training set grown by the checks' simulations."""
     from mpm.files import digest
@@ -125,8 +127,11 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
         largest_fold = -(-len(yf) // FOLDS)  # ceil: each fold's emulator trains on the rest
         if len(yf) - largest_fold < min_training(3):
             raise ValueError(too_few)
-        emu = LossEmulator(seed=seed).fit(Xf, yf, kernel=kernel)
-        kernel = emu.gp.kernel_
+        if round_ == 0:
+            emu = LossEmulator(seed=seed).fit(Xf, yf, kernel=kernel)
+            kernel = emu.gp.kernel_
+        else:
+            emu = LossEmulator(seed=seed).fit(Xf, yf, theta=kernel.theta)
         validation = emulator_error(Xf, yf, base_noise, split, seed=seed, kernel=kernel)
         noise = base_noise.with_emulator(validation.rmse)
         if progress:
@@ -139,7 +144,7 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
                       min_ess=min_ess, max_steps=max_steps, backend=backend, backend_name=f"mcmc-{key}",
                       progress=progress)
         if draws <= 0:
-            return CheckedFit(emu, validation, noise, post, None, Xf, yf), X, y
+            return CheckedFit(emu, validation, noise, post, None, Xf, yf, kernel), X, y
         draw = np.random.default_rng([seed, stage, round_])
         pick = draw.choice(len(post.samples), size=min(draws, len(post.samples)), replace=False)
         X_chk = post.samples[pick]
@@ -151,4 +156,4 @@ def checked_posterior(losses, X, y, x_hat, lo, hi, base_noise, *, draws: int, sp
                       f"{check.failed} failed: {'trusted' if check.passed else 'retraining'}"))
         X, y = np.vstack([X, X_chk]), np.concatenate([y, y_chk])
         if check.passed or round_ == rounds:
-            return CheckedFit(emu, validation, noise, post, check, Xf, yf), X, y
+            return CheckedFit(emu, validation, noise, post, check, Xf, yf, kernel), X, y

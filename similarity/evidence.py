@@ -14,8 +14,9 @@ special case of it is the Savage-Dickey ratio of the posterior density on the sp
 prior's there, and equals Z_law / Z_case.
 
 Method: importance sampling.  The proposal is a Gaussian mixture fitted (scikit-learn) to posterior samples of
-the law (emcee, :func:`similarity.mcmc.sample`, on the face for a special case), its covariances widened by
-``WIDEN`` and mixed with a uniform share ``DEFENSIVE`` over the box, which bounds the weights.  With N draws,
+the law (emcee, :func:`similarity.mcmc.sample`; for a special case, a zoomed grid over its face:
+:func:`face_posterior`), its covariances widened by ``WIDEN`` and mixed with a uniform share ``DEFENSIVE`` over
+the box, which bounds the weights.  With N draws,
 Z ~ mean(w), w = p(footage | z) / q(z), and its Monte Carlo error is the weights' standard error
 (``log_z_err`` = std(w) / (mean(w) sqrt(N))).
 
@@ -276,32 +277,39 @@ def importance_log_z(log_like: Callable, samples, lo, hi, *, draws: int = DRAWS,
     return log_z, err, ess, z, ll
 
 
-def face_posterior(log_like: Callable, law: Law, lo, hi, *, seed: int = 0, start: int = 2048, min_ess: float = 200.0,
-                   max_steps: int = 5000):
-    """emcee samples (free coordinates) and their log-likelihoods of ``law``'s posterior on its face of the box
-    [lo, hi] (``log_like`` takes normalised materials (m, 3)); the walkers start at the best of ``start`` Sobol
-    points on the face."""
-    from scipy.stats import qmc
+FACE_CELLS = {1: 4096, 2: 128}  # a special law's face grid: cells per free coordinate, by how many are free
+FACE_SAMPLES = 10000  # draws of a special law's posterior on its face (face_posterior)
+FACE_LEVELS = 3  # grids at most: each zooms onto the cells of the one before that hold the posterior's mass
 
-    from similarity.mcmc import sample
 
+def face_posterior(log_like: Callable, law: Law, lo, hi, *, seed: int = 0, samples: int = FACE_SAMPLES):
+    """``samples`` draws (free coordinates) of ``law``'s posterior on its face of the box [lo, hi] (``log_like`` takes
+    normalised materials (m, 3)).  A face has one or two free coordinates, so the posterior is computed on a grid of
+    ``FACE_CELLS`` cell centres, zoomed (at most ``FACE_LEVELS`` grids) onto the cells whose weight exceeds 1e-12 of
+    the total, one cell of margin each way, while that halves the grid's extent; the draws are cells drawn by weight,
+    each placed uniformly in its cell.  Unlike a sampler started at one point it sees every mode on the face."""
     free = list(law.free)
-    flo, fhi = np.asarray(lo, float)[free], np.asarray(hi, float)[free]
-
-    def log_prob(z):
-        z = np.atleast_2d(z)
-        out = np.full(len(z), -np.inf)
-        ok = np.all((z >= flo) & (z <= fhi), axis=1)
-        if ok.any():
-            out[ok] = log_like(law.embed(z[ok]))
-        return out
-
-    z0 = qmc.scale(qmc.Sobol(d=len(free), scramble=True, seed=seed).random(start), flo, fhi)
-    best = z0[int(np.argmax(log_prob(z0)))]
-    ball = 1e-3 * float(np.min(fhi - flo))
-    post = sample(log_prob, best, nwalkers=max(16, 8 * len(free)), seed=seed, min_ess=min_ess, max_steps=max_steps,
-                  check_every=100, ball=ball)
-    return post.samples, post.log_prob
+    k = len(free)
+    cells = FACE_CELLS[k]
+    a, b = np.asarray(lo, float)[free], np.asarray(hi, float)[free]
+    for _ in range(FACE_LEVELS):
+        h = (b - a) / cells
+        axes = [a[i] + h[i] * (np.arange(cells) + 0.5) for i in range(k)]
+        z = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, k)
+        ll = log_like(law.embed(z))
+        if not np.isfinite(ll).any():
+            raise ValueError(f"the likelihood vanishes on the {law.name} face: no posterior there")
+        w = np.exp(ll - np.max(ll))
+        w /= w.sum()
+        held = z[w > 1e-12]
+        a_new = np.maximum(held.min(axis=0) - h, np.asarray(lo, float)[free])
+        b_new = np.minimum(held.max(axis=0) + h, np.asarray(hi, float)[free])
+        if np.all(b_new - a_new > 0.5 * (b - a)):
+            break
+        a, b = a_new, b_new
+    rng = np.random.default_rng([seed, 11])
+    pick = rng.choice(len(z), size=samples, p=w)
+    return z[pick] + (rng.random((samples, k)) - 0.5) * h
 
 
 def law_evidence(log_like: Callable, law: Law, lo, hi, *, samples=None, seed: int = 0, draws: int = DRAWS):
@@ -313,7 +321,7 @@ def law_evidence(log_like: Callable, law: Law, lo, hi, *, samples=None, seed: in
         raise ValueError(f"the box does not reach the {law.name} face ({law.description})")
     free = list(law.free)
     if samples is None:
-        z_post, _ = face_posterior(log_like, law, lo, hi, seed=seed)
+        z_post = face_posterior(log_like, law, lo, hi, seed=seed)
     else:
         z_post = np.atleast_2d(samples)[:, free]
     lo_f, hi_f = np.asarray(lo, float)[free], np.asarray(hi, float)[free]

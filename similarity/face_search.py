@@ -26,33 +26,17 @@ def face_search(losses: Callable, law, start, *, seed: int = 0, generations: int
     (normalised, (3,)), each generation simulated at once by ``losses`` (normalised (k, 3) -> mean video losses (k,),
     NaN where a simulation failed).  Returns the normalised materials simulated, all on the face, and their losses.
     Deterministic for a seed: a re-run asks the same materials (and the store answers them)."""
-    import cma
-
-    free = list(law.free)
-    u0 = to_search(np.clip(np.asarray(start, float), 0.0, 1.0), SPACE)
-    if len(free) == 1:
-        return _line_search(losses, law, float(u0[free[0]]), generations, popsize)
-    es = cma.CMAEvolutionStrategy(np.clip(u0[free], 0.02, 0.98), SIGMA0,
-                                  {"bounds": [0.0, 1.0], "popsize": popsize, "seed": seed + 1, "verbose": -9})
-    X, y = [], []
-    for _ in range(generations):
-        z = np.asarray(es.ask())
-        x = from_search(law.embed(z), SPACE)
-        loss = np.asarray(losses(x), float)
-        X.append(x)
-        y.append(loss)
-        finite = loss[np.isfinite(loss)]
-        worst = (float(finite.max()) if finite.size else 1.0) * 2.0 + 1.0  # a failed simulation ranks last
-        es.tell(list(z), np.where(np.isfinite(loss), loss, worst).tolist())
-    return np.vstack(X), np.concatenate(y)
+    return _drive(losses, [_searcher(law, start, seed, generations, popsize)])[0]
 
 
 def search_faces(losses: Callable, laws, start, *, seed: int = 0, say=print) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`face_search` on the face of each special law among ``laws``, one after the other; ``say`` gets one line
-    per face with its best fit.  Returns everything simulated (normalised, (k, 3)) and the losses."""
+    """:func:`face_search` on the face of each special law among ``laws``, the faces' generations simulated together
+    (each face's search is the one :func:`face_search` makes alone); ``say`` gets one line per face with its best fit.
+    Returns everything simulated (normalised, (k, 3)) and the losses, face after face."""
+    special = [law for law in laws if law.fixed]
+    found = _drive(losses, [_searcher(law, start, seed, GENERATIONS, POPSIZE) for law in special])
     X, y = [np.zeros((0, 3))], [np.zeros(0)]
-    for law in (law for law in laws if law.fixed):
-        X_face, y_face = face_search(losses, law, start, seed=seed)
+    for law, (X_face, y_face) in zip(special, found):
         i = int(np.nanargmin(y_face)) if np.isfinite(y_face).any() else 0
         eta, n, sigma_y = denormalize(X_face[i])
         say(f"{law.name}: best fit on its face eta {eta:.3g} Pa s^n, n {n:.3g}, sigma_y {sigma_y:.3g} Pa, loss "
@@ -62,18 +46,60 @@ def search_faces(losses: Callable, laws, start, *, seed: int = 0, say=print) -> 
     return np.vstack(X), np.concatenate(y)
 
 
-def _line_search(losses, law, u0: float, generations: int, popsize: int) -> tuple[np.ndarray, np.ndarray]:
-    """The one free coordinate's search (pycma does not run in one dimension): ``popsize`` evenly spaced points around
-    the best so far, over +-2 SIGMA0 at first and half as wide each generation."""
+def _drive(losses: Callable, searchers: list) -> list:
+    """Run searchers (generators that yield the normalised materials of a generation and are sent their losses)
+    side by side, every generation of all of them in one call of ``losses``: what each simulated and its losses."""
+    asked = [next(s) for s in searchers]
+    X = [[] for _ in searchers]
+    y = [[] for _ in searchers]
+    live = list(range(len(searchers)))
+    while live:
+        loss = np.asarray(losses(np.vstack([asked[k] for k in live])), float)
+        cuts = np.cumsum([len(asked[k]) for k in live])[:-1]
+        for k, part in zip(list(live), np.split(loss, cuts)):
+            X[k].append(asked[k])
+            y[k].append(part)
+            try:
+                asked[k] = searchers[k].send(part)
+            except StopIteration:
+                live.remove(k)
+    return [(np.vstack(a), np.concatenate(b)) for a, b in zip(X, y)]
+
+
+def _searcher(law, start, seed: int, generations: int, popsize: int):
+    """One face's search as a generator: yields each generation's normalised materials, is sent their losses."""
+    import cma
+
+    free = list(law.free)
+    u0 = to_search(np.clip(np.asarray(start, float), 0.0, 1.0), SPACE)
+    if len(free) == 1:
+        yield from _line_search(law, float(u0[free[0]]), generations, popsize)
+        return
+    es = cma.CMAEvolutionStrategy(np.clip(u0[free], 0.02, 0.98), SIGMA0,
+                                  {"bounds": [0.0, 1.0], "popsize": popsize, "seed": seed + 1, "verbose": -9})
+    # pycma seeds and draws from numpy's global generator: each search keeps its own stream of it, so that the faces
+    # searched side by side ask what each asks alone
+    stream = np.random.get_state()
+    for _ in range(generations):
+        np.random.set_state(stream)
+        z = np.asarray(es.ask())
+        stream = np.random.get_state()
+        loss = yield from_search(law.embed(z), SPACE)
+        finite = loss[np.isfinite(loss)]
+        worst = (float(finite.max()) if finite.size else 1.0) * 2.0 + 1.0  # a failed simulation ranks last
+        np.random.set_state(stream)
+        es.tell(list(z), np.where(np.isfinite(loss), loss, worst).tolist())
+        stream = np.random.get_state()
+
+
+def _line_search(law, u0: float, generations: int, popsize: int):
+    """The one free coordinate's search (pycma does not run in one dimension), as a generator like
+    :func:`_searcher`: ``popsize`` evenly spaced points around the best so far, over +-2 SIGMA0 at first and half as
+    wide each generation."""
     center, half = u0, 2.0 * SIGMA0
-    X, y = [], []
     for _ in range(generations):
         z = np.unique(np.clip(center + half * np.linspace(-1.0, 1.0, popsize), 0.0, 1.0))
-        x = from_search(law.embed(z[:, None]), SPACE)
-        loss = np.asarray(losses(x), float)
-        X.append(x)
-        y.append(loss)
+        loss = yield from_search(law.embed(z[:, None]), SPACE)
         if np.isfinite(loss).any():
             center = float(z[np.nanargmin(loss)])
         half /= 2.0
-    return np.vstack(X), np.concatenate(y)

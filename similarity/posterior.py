@@ -173,7 +173,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
             simulate_draws, X_all, y_all, x_hat, lo, hi, base_noise, draws=new_simulations,
             split=rng, seed=seed, stage=attempt, nwalkers=nwalkers, min_ess=min_ess, max_steps=max_steps,
             backend=run.folder / "posterior.h5", progress=progress,
-            kernel=None if fit is None else fit.emulator.gp.kernel_,
+            kernel=None if fit is None else fit.kernel,
             too_few=f"{run.folder}: the emulator's box +-{half_width:g} holds too few simulated candidates "
                     f"({len(X_old)} from the store made with this solver, {len(X_new)} new) to fit it and hold a "
                     f"fifth out: raise --new-simulations")
@@ -275,7 +275,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     np.save(run.folder / "posterior_samples.npy", post.samples)
     np.save(run.folder / "posterior_log_prob.npy", post.log_prob)  # one log-posterior per sample
     # `virheo laws` fits the same emulator again from it
-    np.savez(run.folder / TRAINING_FILE, X=fit.X, y=fit.y, seed=seed, theta=fit.emulator.gp.kernel_.theta)
+    np.savez(run.folder / TRAINING_FILE, X=fit.X, y=fit.y, seed=seed, theta=fit.kernel.theta)
     write_json(run.folder / "posterior.json", summary)
     return Analysis(run, post, noise, emu, summary, frames, box_log_posterior(noise, emu, lo, hi))
 

@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 from scipy.stats import norm, truncnorm
 
-from similarity.evidence import (LAWS, N_ONE, QUESTIONS, RESOLVED, SIGMA_Y_ZERO, law_evidence, parse_laws, strength,
-                                 summarise, verdict)
+from similarity.evidence import (LAWS, N_ONE, QUESTIONS, RESOLVED, SIGMA_Y_ZERO, face_posterior, law_evidence,
+                                 parse_laws, strength, summarise, verdict)
 
 
 def gaussian(mu, sd):
@@ -41,6 +41,36 @@ def test_gaussian_in_a_box_all_four_laws(mu, sd):
         exact += sum(-0.5 * ((v - mu[i]) / sd[i]) ** 2 for i, v in law.fixed)
         assert ev.log_z_err < 0.05, law.name
         assert abs(ev.log_z - exact) < 4 * ev.log_z_err + 1e-3, (law.name, ev.log_z, exact, ev.log_z_err)
+
+
+@pytest.mark.parametrize("law, mu, sd", [("power-law", [0.3, 0.6], [0.1, 0.2]),  # wide, cut by the box
+                                         ("bingham", [0.41, 0.7], [2e-4, 5e-3]),  # far narrower than a first-grid cell
+                                         ("newtonian", [0.123], [3e-5])])
+def test_face_posterior_matches_a_gaussian_on_the_face(law, mu, sd):
+    """The face's grid posterior has the moments of a Gaussian likelihood on the face (truncated by the box), however
+    narrow: the grid zooms onto it."""
+    law = LAWS[law]
+    mu, sd = np.array(mu), np.array(sd)
+    full_mu, full_sd = np.full(3, 0.5), np.ones(3)
+    full_mu[list(law.free)], full_sd[list(law.free)] = mu, sd
+    lo, hi = np.zeros(3), np.ones(3)
+    z = face_posterior(gaussian(full_mu, full_sd), law, lo, hi, seed=4)
+    a, b = (0 - mu) / sd, (1 - mu) / sd
+    mean, var = truncnorm.stats(a, b, loc=mu, scale=sd, moments="mv")
+    assert z.shape[1] == len(mu) and np.all((z >= 0) & (z <= 1))
+    assert np.abs(z.mean(axis=0) - mean) == pytest.approx(0, abs=0.05 * float(np.max(sd)))
+    assert z.std(axis=0) == pytest.approx(np.sqrt(var), rel=0.05)
+
+
+def test_face_posterior_sees_both_of_two_distant_modes():
+    """Two equal narrow modes on the power law's face, far apart: the grid holds half its draws in each (a sampler
+    started at one of them keeps to it)."""
+    law = LAWS["power-law"]
+    one, two = gaussian([0.2, 0.2, 0.0], [0.01, 0.01, 1.0]), gaussian([0.8, 0.7, 0.0], [0.01, 0.01, 1.0])
+    z = face_posterior(lambda x: np.logaddexp(one(x), two(x)), law, np.zeros(3), np.ones(3), seed=5)
+    near_one = np.all(np.abs(z - [0.2, 0.2]) < 0.06, axis=1)
+    near_two = np.all(np.abs(z - [0.8, 0.7]) < 0.06, axis=1)
+    assert np.all(near_one | near_two) and abs(near_one.mean() - 0.5) < 0.03
 
 
 def test_linear_sub_model_closed_form():

@@ -70,3 +70,24 @@ def test_search_faces_searches_each_special_law_once_and_says_its_best_fit():
     # search drops the points that the bounds clip onto one another
     none, _ = search_faces(_valley(target), parse_laws(""), target, say=lines.append)
     assert none.shape == (0, 3) and len(lines) == 3  # Herschel-Bulkley alone has no face
+
+
+def test_the_faces_searched_together_make_each_faces_own_search_in_one_batch_per_generation():
+    """search_faces simulates every face's generation in one call of ``losses`` (8 calls for three faces, not 24), and
+    each face's materials and losses are exactly those of its search alone."""
+    from similarity.evidence import parse_laws
+    from similarity.face_search import GENERATIONS, search_faces
+
+    losses = _valley([0.70, 0.4, 0.55])
+    calls = []
+
+    def counted(X):
+        calls.append(len(X))
+        return losses(X)
+
+    start = from_search(np.array([0.85, 0.4, 0.25]), SPACE)
+    laws = parse_laws("bingham,power-law,newtonian")
+    X, y = search_faces(counted, laws, start, seed=2, say=lambda _: None)
+    assert len(calls) == GENERATIONS and sum(calls) == len(y)
+    alone = [face_search(losses, law, start, seed=2) for law in laws if law.fixed]
+    assert np.array_equal(X, np.vstack([a for a, _ in alone])) and np.array_equal(y, np.concatenate([b for _, b in alone]))

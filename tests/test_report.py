@@ -1,4 +1,5 @@
 """`virheo report RUN` end to end on a shortened demo with the fake forward model, and its input checks."""
+import html
 import json
 import os
 import re
@@ -224,7 +225,7 @@ def test_the_laws_evidence_in_posterior_json_terminal_and_page(reported):
         assert v.log_bf == pytest.approx(ev.of("herschel-bulkley").log_z - ev.of(
             "power-law" if v.question == "yield stress" else "bingham").log_z)
     page = (run / "report" / "index.html").read_text()
-    assert "Which law" in page and ev.verdicts[0].text.split("(")[0].strip() in page
+    assert "Which law" in page and html.escape(ev.verdicts[0].text.split("(")[0].strip()) in page
 
 
 def test_virheo_laws_gives_the_reports_evidence_again(reported, capsys):
