@@ -6,7 +6,8 @@
   the face of every law asked for (:func:`similarity.trust_box.first_box`), with every smaller box's batch of
   new simulations, and doubles, with a new batch each time, while the posterior reaches one of its faces
   inside the material space: a sample in the box's outer ``EDGE`` there within ``REACH_NATS`` of the best
-  (:func:`reaches_a_face`), up to the whole space.  A face on the material space's own boundary is where the
+  (:func:`reaches_a_face`), up to the whole space, which replaces any box of half-width 0.8 or more
+  (:func:`similarity.trust_box.box_widths`).  A face on the material space's own boundary is where the
   prior ends, so a posterior resting there is not cut.
 * Likelihood: eq. (1) of :mod:`similarity.likelihood`, log p = -tau L(x), with the video loss L
   emulated by :class:`surrogate.emulator.LossEmulator` (quadratic trend + GP) trained on the
@@ -34,7 +35,7 @@ from similarity.best_fit import best_fit
 from similarity.evidence import parse_laws, summarise
 from similarity.face_search import search_faces
 from similarity.law_evidence import LAW_NAMES, TRAINING_FILE, face_draws, law_evidences
-from similarity.trust_box import cut_fraction, first_box, reaches_a_face
+from similarity.trust_box import box_widths, cut_fraction, first_box, reaches_a_face
 from similarity.flow_band import flow_band
 from similarity.mcmc import Posterior, check_backend
 from similarity.posterior_summary import (EmulatorSummary, PosteriorCheck, PosteriorStats, PosteriorSummary,  # noqa: F401
@@ -45,7 +46,6 @@ from similarity.progress import Message, first_line
 from similarity.emulator_check import CHECK_ROUNDS, box_log_posterior, checked_posterior, posterior_check
 
 NOISE_COUNT = "frames"  # how N_eff is counted (similarity/likelihood.py), chosen by the calibration study
-MAX_EXPANSIONS = 4  # the emulator's box doubles at most this often (0.1 -> 1 covers the space)
 
 
 # -- posterior inputs of a run --------------------------------------------------------------------
@@ -131,7 +131,7 @@ def analyse(folder, *, forward=None, new_simulations: int = 24, half_width: floa
     # reaches one of its inner faces: a cut posterior is the box's, not the footage's.
     X_all, y_all = np.zeros((0, 3)), np.zeros(0)
     rng = np.random.default_rng(seed)
-    widths = [min(half_width * 2.0**k, 1.0) for k in range(MAX_EXPANSIONS + 1)]
+    widths = box_widths(half_width)
     batches = [space_filling(x_hat, w, new_simulations, seed=seed + k) if new_simulations else np.zeros((0, 3))
                for k, w in enumerate(widths)]
     stored = archive(run, x_hat, 1.0)  # one pass over the store; each box takes its part

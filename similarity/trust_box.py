@@ -8,6 +8,18 @@ from scipy.stats import chi2
 
 EDGE = 0.05  # the outer fraction of the box's width next to a face in which a sample counts as at that face
 REACH_NATS = float(0.5 * chi2.ppf(0.999, 3))  # 8.1: -log p (eq. 1) within which a 3-D Gaussian holds 99.9 % of its mass
+WHOLE_FROM = 0.8  # a box this wide (half-width, normalised) or wider is the whole space: it leaves out at most a fifth
+# of any coordinate's range (nothing for a centre between 0.2 and 0.8), and growing it there would cost a full round
+
+
+def box_widths(half_width: float) -> list[float]:
+    """The emulator box's half-widths, smallest first: ``half_width`` doubling, the first of ``WHOLE_FROM`` or more
+    replaced by 1 (the whole space, whatever the centre) and the last."""
+    widths = [float(half_width)]
+    while widths[-1] < WHOLE_FROM:
+        widths.append(2.0 * widths[-1])
+    widths[-1] = 1.0
+    return widths
 
 
 def at_inner_face(samples, lo, hi) -> np.ndarray:

@@ -143,11 +143,19 @@ def test_law_names():
         parse_laws("bingham,casson")
 
 
+def test_the_emulators_box_doubles_to_the_whole_space_which_replaces_half_widths_from_0_8():
+    from similarity.trust_box import box_widths
+
+    assert box_widths(0.1) == [0.1, 0.2, 0.4, 1.0]
+    assert box_widths(0.5) == [0.5, 1.0] and box_widths(0.3) == pytest.approx([0.3, 0.6, 1.0])
+    assert box_widths(0.8) == [1.0] and box_widths(1.0) == [1.0]
+
+
 def test_the_emulators_box_starts_at_the_first_width_that_reaches_every_laws_face():
-    from similarity.trust_box import first_box
+    from similarity.trust_box import box_widths, first_box
     from surrogate.emulator import box
 
-    widths = [0.1, 0.2, 0.4, 0.8, 1.0]
+    widths = box_widths(0.1)
     special = [LAWS[name] for name in ("bingham", "power-law", "newtonian")]
     rng = np.random.default_rng(7)
     for x in [*rng.random((200, 3)), np.array([0.5, N_ONE, SIGMA_Y_ZERO]), np.zeros(3), np.ones(3)]:
