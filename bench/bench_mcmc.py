@@ -88,11 +88,10 @@ def quadrature_log_z(log_like, law, lo, hi) -> float:
     cells per free coordinate: the reference the importance-sampling estimates are compared with."""
     from scipy.special import logsumexp
 
+    from similarity.evidence import face_cells
+
     free = list(law.free)
-    a, b = np.asarray(lo, float)[free], np.asarray(hi, float)[free]
-    h = (b - a) / QUADRATURE_CELLS
-    axes = [a[i] + h[i] * (np.arange(QUADRATURE_CELLS) + 0.5) for i in range(len(free))]
-    z = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(free))
+    z, h = face_cells(np.asarray(lo, float)[free], np.asarray(hi, float)[free], QUADRATURE_CELLS)
     ll = np.concatenate([log_like(law.embed(part)) for part in np.array_split(z, max(1, len(z) // 16384))])
     return float(logsumexp(ll) + np.sum(np.log(h)))
 

@@ -282,6 +282,15 @@ FACE_SAMPLES = 10000  # draws of a special law's posterior on its face (face_pos
 FACE_LEVELS = 3  # grids at most: each zooms onto the cells of the one before that hold the posterior's mass
 
 
+def face_cells(a, b, cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """The centres (m, k) of a grid of ``cells`` cells per coordinate over the box [a, b] of a face's k free
+    coordinates, and the cells' widths (k,)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    h = (b - a) / cells
+    axes = [a[i] + h[i] * (np.arange(cells) + 0.5) for i in range(len(a))]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, len(a)), h
+
+
 def face_posterior(log_like: Callable, law: Law, lo, hi, *, seed: int = 0, samples: int = FACE_SAMPLES):
     """``samples`` draws (free coordinates) of ``law``'s posterior on its face of the box [lo, hi] (``log_like`` takes
     normalised materials (m, 3)).  A face has one or two free coordinates, so the posterior is computed on a grid of
@@ -289,27 +298,23 @@ def face_posterior(log_like: Callable, law: Law, lo, hi, *, seed: int = 0, sampl
     the total, one cell of margin each way, while that halves the grid's extent; the draws are cells drawn by weight,
     each placed uniformly in its cell.  Unlike a sampler started at one point it sees every mode on the face."""
     free = list(law.free)
-    k = len(free)
-    cells = FACE_CELLS[k]
-    a, b = np.asarray(lo, float)[free], np.asarray(hi, float)[free]
+    face_lo, face_hi = np.asarray(lo, float)[free], np.asarray(hi, float)[free]
+    a, b = face_lo, face_hi
     for _ in range(FACE_LEVELS):
-        h = (b - a) / cells
-        axes = [a[i] + h[i] * (np.arange(cells) + 0.5) for i in range(k)]
-        z = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, k)
+        z, h = face_cells(a, b, FACE_CELLS[len(free)])
         ll = log_like(law.embed(z))
         if not np.isfinite(ll).any():
             raise ValueError(f"the likelihood vanishes on the {law.name} face: no posterior there")
         w = np.exp(ll - np.max(ll))
         w /= w.sum()
         held = z[w > 1e-12]
-        a_new = np.maximum(held.min(axis=0) - h, np.asarray(lo, float)[free])
-        b_new = np.minimum(held.max(axis=0) + h, np.asarray(hi, float)[free])
+        a_new, b_new = np.maximum(held.min(axis=0) - h, face_lo), np.minimum(held.max(axis=0) + h, face_hi)
         if np.all(b_new - a_new > 0.5 * (b - a)):
             break
         a, b = a_new, b_new
     rng = np.random.default_rng([seed, 11])
     pick = rng.choice(len(z), size=samples, p=w)
-    return z[pick] + (rng.random((samples, k)) - 0.5) * h
+    return z[pick] + (rng.random((samples, len(free))) - 0.5) * h
 
 
 def law_evidence(log_like: Callable, law: Law, lo, hi, *, samples=None, seed: int = 0, draws: int = DRAWS):
