@@ -13,8 +13,8 @@ WHOLE_FROM = 0.8  # a box this wide (half-width, normalised) or wider is the who
 
 
 def box_widths(half_width: float) -> list[float]:
-    """The emulator box's half-widths, smallest first: ``half_width`` doubling, the first of ``WHOLE_FROM`` or more
-    replaced by 1 (the whole space, whatever the centre) and the last."""
+    """The emulator box's half-widths, smallest first: ``half_width`` doubling until it reaches ``WHOLE_FROM``; that
+    last one is 1, the whole space whatever the centre."""
     widths = [float(half_width)]
     while widths[-1] < WHOLE_FROM:
         widths.append(2.0 * widths[-1])
