@@ -61,7 +61,7 @@ def main(argv=None) -> int:
                 print(f"  {line}")
             print("  phases (seconds at which the report printed each progress line):")
             for t, line in timeline:
-                if any(phase in line for phase in PHASES):
+                if line.startswith(PHASES) or line.partition(": ")[2].startswith(PHASES):  # "bingham: best fit ..."
                     print(f"  {t:6.1f}  {line[:110]}")
     return 0
 
