@@ -198,7 +198,8 @@ def _fmt(v) -> str:
     return "–" if v is None else f"{v:.4g}"
 
 
-def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, coverage=None) -> Path:
+def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, coverage=None,
+               preset: str | None = None) -> Path:
     """index.html in ``out`` referring to the PNGs by relative name (all in ``out``)."""
     from similarity.emulator_check import FOLDS
 
@@ -260,7 +261,7 @@ def write_html(out, summary, figures: dict, *, overlays: list, rheometer=None, c
     if rheometer is not None:
         rheo = (f"<p>Rheometer curve: {e(rheometer.name)}; {100 * coverage:.0f} % of its points between 1 and "
                 f"100 1/s lie inside the 90 % band.</p>")
-    laws = _laws_html(summary.evidence)
+    laws = _laws_html(summary.evidence, preset)
     better = better_fit_html(summary.best_fit)
     img = lambda key, alt: f'<img src="{e(figures[key].name)}" alt="{e(alt)}">' if figures.get(key) else ""
     ovl = "".join(f'<h3>setup {e(s)} mm</h3><img src="{e(p.name)}" alt="overlays {e(s)}">' for s, p in overlays)
@@ -308,8 +309,11 @@ def better_fit_html(fit) -> str:
     return f"<p><b>{html.escape(fit.text[0].upper() + fit.text[1:])}.</b></p>"
 
 
-def _laws_html(evidence) -> str:
-    """The verdicts and the laws' evidence table (:mod:`similarity.evidence`), or a line saying there are none."""
+def _laws_html(evidence, preset: str | None) -> str:
+    """The verdicts and the laws' evidence table (:mod:`similarity.evidence`) with how the verdicts fared at the run's
+    preset, or a line saying there are none."""
+    from studies.law_validation import calibration_line
+
     if evidence is None:
         return "<p>No evidence of the laws in this posterior (written before it existed): run the report again.</p>"
     e = html.escape
@@ -325,7 +329,7 @@ def _laws_html(evidence) -> str:
             f"{rows}</table><p>Each law is eq. 1 with n = 1 (Bingham), sigma_y = 0 (power law) or both (Newtonian), "
             f"with the same likelihood and the same prior restricted to its face; the evidence is integrated over the "
             f"emulator's box (never beyond it) by importance sampling. Jeffreys' scale in ln BF: 1.15 substantial, "
-            f"2.3 strong (resolved), 3.45 very strong, 4.6 decisive.</p>")
+            f"2.3 strong (resolved), 3.45 very strong, 4.6 decisive.</p><p>{e(calibration_line(preset))}.</p>")
 
 
 def _check_line(check) -> str:
@@ -360,4 +364,5 @@ def write_report(out, analysis, *, rheometer=None) -> Path:
     coverage = band_coverage(summary.flow_band, rheometer) if rheometer is not None else None
     if coverage is not None:
         summary.rheometer_band_coverage = coverage
-    return write_html(out, summary, figures, overlays=overlays, rheometer=rheometer, coverage=coverage)
+    return write_html(out, summary, figures, overlays=overlays, rheometer=rheometer, coverage=coverage,
+                      preset=analysis.run.preset.name)

@@ -104,3 +104,28 @@ def test_quick_study_runs_and_resumes_without_simulating(tmp_path):
     proc = _study(out, log)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert log.read_text().splitlines() == simulated
+
+
+def test_report_quotes_the_round_that_estimated_at_its_preset(tmp_path):
+    from studies.law_validation import DATA, calibration_line, rounds
+
+    pl, hb = Material(1.0, 0.5, 0.0), Material(1.0, 0.5, 5.0)
+    recs = [_record("power-law", pl, -3.0, 5.0), _record("herschel-bulkley", hb, 5.0, 1.0),
+            _record("power-law", pl, 4.7, 2.4)]
+    laws = {"config": {"preset": "survey", "quick": False}, "summary": summarise(recs).to_dict(),
+            "cases": [r.to_dict() for r in recs]}
+    (tmp_path / "law_calibration_x").mkdir()
+    (tmp_path / "law_calibration_x" / "laws.json").write_text(json.dumps(laws))
+    (tmp_path / "law_calibration_q").mkdir()  # a quick round calibrates nothing
+    (tmp_path / "law_calibration_q" / "laws.json").write_text(json.dumps({**laws, "config": {"preset": "demo", "quick": True}}))
+    line = calibration_line("survey", data=tmp_path)
+    assert "3 materials" in line and "yield stress resolved in 3 of 3, right in 2" in line
+    assert "shear thinning resolved in 2 of 3, right in 2" in line and "1 decisively wrong" in line
+    assert "the most probable law was the power law in 2 of 3 and the true one in 3" in line
+    assert calibration_line("demo", data=tmp_path).startswith("laws' calibration: none at the demo preset's model")
+    # the shipped rounds: their summaries are what the scoring gives on their own cases
+    shipped = rounds(DATA)
+    assert shipped, "no shipped round of virheo study laws"
+    for d in shipped:
+        again = summarise([LawRecord.from_dict(c) for c in d["cases"]]).to_dict()
+        assert again["questions"] == d["summary"]["questions"] and again["cases"] == len(d["cases"]) == 18

@@ -226,6 +226,11 @@ def test_the_laws_evidence_in_posterior_json_terminal_and_page(reported):
             "power-law" if v.question == "yield stress" else "bingham").log_z)
     page = (run / "report" / "index.html").read_text()
     assert "Which law" in page and html.escape(ev.verdicts[0].text.split("(")[0].strip()) in page
+    # how the verdicts fared at the run's preset in the shipped calibration (or that none calibrates it)
+    from studies.law_validation import calibration_line
+
+    line = calibration_line(json.loads((run / "result.json").read_text())["preset"])
+    assert line in proc.stdout and html.escape(line) in page
 
 
 def test_virheo_laws_gives_the_reports_evidence_again(reported, capsys):
@@ -236,7 +241,8 @@ def test_virheo_laws_gives_the_reports_evidence_again(reported, capsys):
     assert [e["log_z"] for e in again["laws"]] == pytest.approx([e["log_z"] for e in stored["laws"]], abs=1e-9)
     assert main(["laws", str(run), "--laws", "newtonian"]) == 0
     out = capsys.readouterr().out
-    assert "newtonian" in out and "bingham" not in out
+    assert "newtonian" in out and "bingham" not in out.replace("Bingham", "")
+    assert "laws' calibration" in out
 
 
 def test_laws_bad_input_is_one_line_exit_2(reported, tmp_path):

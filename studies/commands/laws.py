@@ -27,6 +27,7 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from similarity.evidence import parse_laws
     from similarity.law_evidence import evidence_of_report
+    from similarity.run_folder import read_result
     from studies.commands.report import print_verdicts
 
     laws = [law.name for law in parse_laws(args.laws)]  # an unknown law stops here
@@ -34,5 +35,6 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(evidence.to_dict(), indent=1))
     else:
-        print_verdicts(evidence)
+        result, _ = read_result(args.run)
+        print_verdicts(evidence, result.get("preset", "demo"))
     return 0

@@ -105,13 +105,16 @@ def run(args: argparse.Namespace) -> int:
         print(f"rheometer points (1-100 1/s) inside the 90 % band: {100 * summary.rheometer_band_coverage:.0f} %")
     if summary.best_fit is not None and summary.best_fit.better:
         print(summary.best_fit.text)
-    print_verdicts(summary.evidence)
+    print_verdicts(summary.evidence, analysis.run.preset.name)
     print(f"report: {page}")
     return 0
 
 
-def print_verdicts(evidence) -> None:
-    """The laws' verdicts and log Bayes factors against Herschel-Bulkley, one line each."""
+def print_verdicts(evidence, preset: str | None) -> None:
+    """The laws' verdicts and log Bayes factors against Herschel-Bulkley, one line each, and how the verdicts fared
+    at the run's preset (:func:`studies.law_validation.calibration_line`)."""
+    from studies.law_validation import calibration_line
+
     if evidence is None:
         print("laws: no evidence computed")
         return
@@ -121,3 +124,4 @@ def print_verdicts(evidence) -> None:
     print("laws, ln BF against Herschel-Bulkley (probability at equal prior odds): " + ", ".join(
         f"{e.law} {e.log_z - ref.log_z:+.1f} ± {np.hypot(e.log_z_err, ref.log_z_err):.1f} "
         f"({evidence.probabilities[e.law]:.2f})" for e in evidence.laws if e.law != ref.law))
+    print("  " + calibration_line(preset))
