@@ -24,6 +24,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from measured import how_measured, real_materials  # noqa: E402  (bench/ is this script's folder)
+from studies.law_validation import NAMES  # noqa: E402
 
 SLUGS = {"Japanese thickened Worcestershire sauce": "worcestershire", "moisturizing milk": "milk",
          "Japanese cabbage pancake sauce": "okonomiyaki", "lotion": "lotion", "thousand island dressing": "island",
@@ -43,8 +44,6 @@ def rheometer_fits() -> dict:
     return out
 
 
-NAMES = {"herschel-bulkley": "Herschel-Bulkley", "bingham": "Bingham", "power-law": "power law",
-         "newtonian": "Newtonian"}  # the laws as docs/uncertainty.md's table writes them
 
 
 def _reported(out: Path) -> bool:

@@ -12,8 +12,8 @@ from pathlib import Path
 from mpm.files import read_json
 
 DATA = Path(__file__).resolve().parent / "data"
-WORDS = {"herschel-bulkley": "Herschel-Bulkley", "bingham": "Bingham", "power-law": "the power law",
-         "newtonian": "Newtonian"}
+NAMES = {"herschel-bulkley": "Herschel-Bulkley", "bingham": "Bingham", "power-law": "power law",
+         "newtonian": "Newtonian"}  # the laws in words
 
 
 def rounds(data=DATA) -> list[dict]:
@@ -46,5 +46,5 @@ def calibration_line(preset: str | None, data=DATA) -> str:
     wrong = sum(q["decisively_wrong"] for q in s["questions"])
     return (f"laws' calibration at the {preset} preset's model (virheo study laws, {len(cases)} materials, footage of "
             f"a finer model): " + "; ".join(_question(q) for q in s["questions"])
-            + f"; {'none' if wrong == 0 else wrong} decisively wrong; the most probable law was {WORDS[law]} in "
-            f"{count} of {len(cases)} and the true one in {s['most_probable_right']}")
+            + f"; {'none' if wrong == 0 else wrong} decisively wrong; most probable law: {NAMES[law]} in {count} of "
+            f"{len(cases)}, the true one in {s['most_probable_right']}")

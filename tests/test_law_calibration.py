@@ -121,7 +121,7 @@ def test_report_quotes_the_round_that_estimated_at_its_preset(tmp_path):
     line = calibration_line("survey", data=tmp_path)
     assert "3 materials" in line and "yield stress resolved in 3 of 3, right in 2" in line
     assert "shear thinning resolved in 2 of 3, right in 2" in line and "1 decisively wrong" in line
-    assert "the most probable law was the power law in 2 of 3 and the true one in 3" in line
+    assert "most probable law: power law in 2 of 3, the true one in 3" in line
     assert calibration_line("demo", data=tmp_path).startswith("laws' calibration: none at the demo preset's model")
     # the shipped rounds: their summaries are what the scoring gives on their own cases
     shipped = rounds(DATA)
