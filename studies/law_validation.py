@@ -2,7 +2,7 @@
 
 Each round (``studies/data/law_calibration*/laws.json``) scored the verdicts of `virheo report` on footage of a finer
 model than the estimating one, at one preset's model.  :func:`calibration_line` quotes the round that estimated at
-the run's preset, for the report's terminal summary and page, and says "not calibrated" where none did.
+the run's preset, for the report's terminal summary and page, and says so where none did.
 """
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from collections import Counter
 from pathlib import Path
 
 from mpm.files import read_json
+from similarity.evidence import RESOLVED
 
 DATA = Path(__file__).resolve().parent / "data"
 NAMES = {"herschel-bulkley": "Herschel-Bulkley", "bingham": "Bingham", "power-law": "power law",
@@ -38,7 +39,7 @@ def calibration_line(preset: str | None, data=DATA) -> str:
     mine = [d for d in rounds(data) if d["config"].get("preset") == preset]
     if not mine:
         return (f"laws' calibration: none at the {preset} preset's model (no finished round of virheo study laws "
-                "estimated there); read a lean below |ln BF| 2.3 as no evidence")
+                f"estimated there); read a lean below |ln BF| {RESOLVED:.1f} as no evidence")
     d = mine[-1]
     s, cases = d["summary"], d["cases"]
     best = Counter(max(c["evidence"]["probabilities"], key=c["evidence"]["probabilities"].get) for c in cases)
