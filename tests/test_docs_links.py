@@ -102,3 +102,27 @@ def test_every_command_is_one_click_from_the_index():
         anchor = slug(f"virheo {command}")
         assert anchor in guide, f"docs/user-guide.md has no section '### `virheo {command}`'"
         assert f"user-guide.md#{anchor}" in index_links, f"docs/index.md does not link to virheo {command}"
+
+
+_CELL_SEP = re.compile(r"(?<!\\)\|")
+
+
+def _tables(page: Path):
+    """Each table of the page as (line number of its header, [cells per row]); a table is a run of lines starting with |."""
+    lines = _FENCE.sub(lambda m: "\n" * m.group(0).count("\n"), page.read_text(encoding="utf-8")).split("\n")
+    run: list[tuple[int, str]] = []
+    for number, line in enumerate(lines + [""], start=1):
+        if line.startswith("|"):
+            run.append((number, line))
+            continue
+        if len(run) >= 2:
+            yield run[0][0], [len(_CELL_SEP.split(text.strip().strip("|"))) for _, text in run]
+        run = []
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_every_table_row_has_its_headers_cells(page):
+    """A row with more or fewer cells than its header shifts its figures under the wrong column."""
+    bad = [f"{page.name}:{line} header {cells[0]} cells, rows {sorted(set(cells[1:]) - {cells[0]})}"
+           for line, cells in _tables(page) if set(cells) != {cells[0]}]
+    assert not bad, bad
