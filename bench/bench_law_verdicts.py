@@ -44,8 +44,6 @@ def rheometer_fits() -> dict:
     return out
 
 
-
-
 def _reported(out: Path) -> bool:
     """ROOT/<slug>/posterior.json holds the laws' evidence of the estimate in its result.json."""
     from similarity.posterior_summary import read_posterior
