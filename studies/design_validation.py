@@ -97,6 +97,13 @@ class OutcomeValidation(JsonRecord):
     verdict: str  # the study's verdict in words
     recommended: str | None  # the arm the study supports (None: none by its pass rule)
     beat_random: list | None = None  # arms that beat random (p < 0.05); None: a file written before it was kept
+    best: str | None = None  # the arm of the lowest median flow-curve error
+
+
+# what a user does to follow an arm of the outcome study
+ARM_ADVICE = {"information": "virheo design --criterion information", "eig": "virheo design --criterion eig",
+              "perpendicularity": "virheo design --criterion perpendicularity",
+              "largest": f"film {LARGEST} mm", "random": "any setup in the range", "repeat": "film setup 1 again"}
 
 
 def outcome(name: str, path=OUTCOME_FILE) -> dict | None:
@@ -113,7 +120,7 @@ def outcome(name: str, path=OUTCOME_FILE) -> dict | None:
     return OutcomeValidation(arm, int(summary["materials"]), float(mine["median_flow_error"]),
                              None if rnd is None else float(rnd["median_flow_error"]), vs.get("median_difference"),
                              vs.get("interval"), vs.get("wilcoxon_p"), summary["verdict"],
-                             summary.get("recommended"), summary.get("beat_random")).to_dict()
+                             summary.get("recommended"), summary.get("beat_random"), summary.get("best")).to_dict()
 
 
 def outcome_line(o: dict) -> str:
@@ -132,6 +139,11 @@ def outcome_line(o: dict) -> str:
                  "setup without the lowest median error)")
     elif o["recommended"] is None:
         line += "\n  weak: no criterion beat a random second setup on the estimate it gave"
+        if o.get("best") == o["arm"]:  # the pre-registered fallback: the arm of the lowest median error
+            line += "; this criterion had the study's lowest median error, so the study recommends it"
+        elif o.get("best"):
+            line += (f"; the study's lowest median error was {o['best']}'s, so it recommends that "
+                     f"({ARM_ADVICE.get(o['best'], o['best'])})")
     elif o["recommended"] != o["arm"]:
         line += f"\n  weak: the study supports {o['recommended']} instead"
     return line

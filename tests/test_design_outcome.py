@@ -150,8 +150,13 @@ def test_virheo_design_quotes_the_shipped_outcome_for_its_criterion(tmp_path):
     tie = O.verdict([record(m, {"information": 0.3, "perpendicularity": 0.3, "random_0": 0.3, "random_1": 0.3})
                      for m in range(8)])
     path.write_text(json.dumps({"config": {}, "summary": tie.to_dict()}))
-    assert "weak: no criterion beat a random second setup" in V.reliability_line(
-        V.validation("information", "reference", outcome_path=path))
+    line = V.reliability_line(V.validation("information", "reference", outcome_path=path))
+    assert "weak: no criterion beat a random second setup" in line
+    other = next(a for a in ("perpendicularity", "eig") if a != tie.best)  # the registered fallback, named
+    line = V.reliability_line(V.validation(other, "reference", outcome_path=path))
+    assert f"lowest median error was {tie.best}'s" in line and V.ARM_ADVICE[tie.best] in line
+    line = V.reliability_line(V.validation(tie.best, "reference", outcome_path=path))
+    assert "this criterion had the study's lowest median error" in line
     missing = V.validation("information", "reference", outcome_path=tmp_path / "none.json")
     assert missing["outcome"] is None and "not validated by estimation outcome" in V.reliability_line(missing)
 
