@@ -101,8 +101,7 @@ class OutcomeValidation(JsonRecord):
 
 
 # what a user does to follow an arm of the outcome study
-ARM_ADVICE = {"information": "virheo design --criterion information", "eig": "virheo design --criterion eig",
-              "perpendicularity": "virheo design --criterion perpendicularity",
+ARM_ADVICE = {**{arm: f"virheo design --criterion {arm}" for arm in OUTCOME_ARMS.values()},
               "largest": f"film {LARGEST} mm", "random": "any setup in the range", "repeat": "film setup 1 again"}
 
 
